@@ -1,0 +1,217 @@
+"""The navigation task for one robot: pure `reset` / `step` over `flax.struct` state and params.
+
+gymnax style: `NavEnv` holds only static, shape-fixing settings (beam count, mode, collision
+test); what a user may vary per robot or sweep (the playground, the goal, speeds, noise, reward
+constants) is data in `EnvParams`. Batch with `jax.vmap` over (state, params) for robots in
+different playgrounds, and again over seeds.
+
+Observation, f32[num_beams + 4]: the ranges (clipped at `max_range`), the goal distance `d` (m),
+the goal bearing relative to the heading (rad, in [-pi, pi]), and the previous action in the
+network's units (v / v_max in [0, 1], omega / omega_max in [-1, 1]).
+
+Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, clipped to the box.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from fedjax_nav.env.geometry import lidar, nearest_distance
+from fedjax_nav.worlds import World
+
+MODES = ("learn", "eval")
+COLLISION_TESTS = ("exact", "lidar")
+
+
+@struct.dataclass
+class EnvParams:
+    """Per-robot task data. Every leaf is traced: vmap it, sweep it, or stack playgrounds in it."""
+
+    world: World
+    goal_index: jax.Array = struct.field(default_factory=lambda: jnp.int32(0))  # which goal row
+    random_starts: jax.Array = struct.field(default_factory=lambda: jnp.bool_(False))  # FLS
+    dt: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.1))  # s per control step
+    v_max: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.25))  # m/s
+    omega_max: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # rad/s
+    goal_radius: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.5))  # m, D_g
+    collision_distance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.25))  # m, D_c
+    reward_goal: jax.Array = struct.field(default_factory=lambda: jnp.float32(100.0))  # R_g
+    reward_collision: jax.Array = struct.field(default_factory=lambda: jnp.float32(-10.0))  # R_c
+    progress_scale: jax.Array = struct.field(default_factory=lambda: jnp.float32(40.0))  # R_d factor
+    range_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, std
+    action_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # std, action units
+
+
+@struct.dataclass
+class EnvState:
+    pose: jax.Array  # f32[3] (x, y, theta)
+    prev_action: jax.Array  # f32[2] network units
+    goal: jax.Array  # f32[2]
+    dist: jax.Array  # f32[] goal distance at this pose
+    start_index: jax.Array  # i32[] start used at the last reset
+    t: jax.Array  # i32[] steps taken in this episode
+
+
+class NavEnv:
+    """Static settings only (they fix shapes or the program; everything else is in EnvParams).
+
+    mode="learn": on goal or collision (`terminated`) the robot is put back at a start and goes
+    on within the same episode; at `episode_length` steps `truncated` is set and the caller starts
+    the next episode with `reset` (so the observation returned at truncation is the true last one,
+    the one a learner bootstraps from). mode="eval": nothing is reset; the episode is over at the
+    first `terminated` or `truncated` (the caller stops there).
+
+    noise=True draws Gaussian noise on ranges and executed actions with the stds in EnvParams;
+    noise=False (the default for training) draws nothing, which keeps the step cheap.
+    """
+
+    def __init__(
+        self,
+        num_beams: int = 24,
+        max_range: float = 3.5,
+        episode_length: int = 1024,
+        mode: str = "learn",
+        collision_test: str = "exact",
+        noise: bool = False,
+    ):
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if collision_test not in COLLISION_TESTS:
+            raise ValueError(f"collision_test must be one of {COLLISION_TESTS}, got {collision_test!r}")
+        self.num_beams = int(num_beams)
+        self.max_range = float(max_range)
+        self.episode_length = int(episode_length)
+        self.mode = mode
+        self.collision_test = collision_test
+        self.noise = bool(noise)
+
+    @property
+    def obs_size(self) -> int:
+        return self.num_beams + 4
+
+    action_size = 2
+
+    # ------------------------------------------------------------------ pieces
+
+    def ranges(self, pose: jax.Array, params: EnvParams) -> jax.Array:
+        w = params.world
+        return lidar(w.segments, pose, self.num_beams, self.max_range, w.circles)
+
+    def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams) -> jax.Array:
+        if self.noise:
+            ranges = ranges + params.range_noise * jax.random.normal(key, ranges.shape)
+            ranges = jnp.clip(ranges, 0.0, self.max_range)
+        rel = state.goal - state.pose[:2]
+        bearing = jnp.arctan2(rel[1], rel[0]) - state.pose[2]
+        bearing = jnp.arctan2(jnp.sin(bearing), jnp.cos(bearing))
+        return jnp.concatenate([ranges, jnp.stack([state.dist, bearing]), state.prev_action])
+
+    def _start(self, key: jax.Array, params: EnvParams, t: jax.Array) -> EnvState:
+        w = params.world
+        idx = jnp.where(params.random_starts, jax.random.randint(key, (), 0, w.num_starts), 0)
+        pose = w.starts[idx]
+        goal = w.goals[jnp.clip(params.goal_index, 0, w.num_goals - 1)]
+        return EnvState(
+            pose=pose,
+            prev_action=jnp.zeros(2, jnp.float32),
+            goal=goal,
+            dist=jnp.linalg.norm(goal - pose[:2]),
+            start_index=idx.astype(jnp.int32),
+            t=t,
+        )
+
+    # ------------------------------------------------------------------ API
+
+    def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        k_start, k_obs = jax.random.split(key)
+        state = self._start(k_start, params, jnp.int32(0))
+        return self.observe(k_obs, state, self.ranges(state.pose, params), params), state
+
+    def step(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """One control step: `(obs, state, reward, terminated, truncated, info)`.
+
+        `action` = (v / v_max, omega / omega_max), clipped to [0, 1] x [-1, 1].
+        `terminated`: goal or collision (a learner cuts the bootstrap); `truncated`: the time limit
+        (a learner keeps it). In learn mode the obs after a terminal step is at the new start.
+        info: `goal`, `collision` (bool), `pose` (after the move, before any reset),
+        `clearance` (m to the nearest obstacle, or the shortest beam with collision_test="lidar").
+        """
+        # Without noise the key only draws the start after a reset: no split (it costs here).
+        k_act, k_obs, k_reset = jax.random.split(key, 3) if self.noise else (key, key, key)
+        lo, hi = jnp.array([0.0, -1.0]), jnp.array([1.0, 1.0])
+        a = jnp.clip(action, lo, hi)
+        a_exec = a
+        if self.noise:
+            a_exec = jnp.clip(a + params.action_noise * jax.random.normal(k_act, (2,)), lo, hi)
+        pose = unicycle(state.pose, a_exec[0] * params.v_max, a_exec[1] * params.omega_max, params.dt)
+        dist = jnp.linalg.norm(state.goal - pose[:2])
+        moved = state.replace(pose=pose, prev_action=a, dist=dist, t=state.t + 1)
+
+        w = params.world
+        goal = dist < params.goal_radius
+        truncated = moved.t >= self.episode_length
+        if self.collision_test == "exact":
+            clearance = nearest_distance(w.segments, pose[:2], w.circles)
+            collision = clearance < params.collision_distance
+            terminated = goal | collision
+            if self.mode == "learn":  # reset before raycasting: one lidar call per step
+                moved = jax.tree.map(
+                    lambda r, s: jnp.where(terminated, r, s), self._start(k_reset, params, moved.t), moved
+                )
+            ranges = self.ranges(moved.pose, params)
+        else:  # the thesis's test needs the beams at the new pose, then a second cast after a reset
+            ranges = self.ranges(pose, params)
+            clearance = jnp.min(ranges)
+            collision = clearance < params.collision_distance
+            terminated = goal | collision
+            if self.mode == "learn":
+                moved = jax.tree.map(
+                    lambda r, s: jnp.where(terminated, r, s), self._start(k_reset, params, moved.t), moved
+                )
+                ranges = jnp.where(terminated, self.ranges(moved.pose, params), ranges)
+        reward = (
+            params.progress_scale * (state.dist - dist)
+            + jnp.where(goal, params.reward_goal, 0.0)
+            + jnp.where(collision, params.reward_collision, 0.0)
+        )
+        if self.mode == "eval":
+            truncated = truncated & ~terminated
+        obs = self.observe(k_obs, moved, ranges, params)
+        info = {"goal": goal, "collision": collision, "pose": pose, "clearance": clearance}
+        return obs, moved, reward, terminated, truncated, info
+
+
+def unicycle(pose: jax.Array, v: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:
+    """Exact arc integration of x' = v cos th, y' = v sin th, th' = omega over dt."""
+    x, y, th = pose[0], pose[1], pose[2]
+    th2 = th + omega * dt
+    small = jnp.abs(omega * dt) < 1e-6
+    w_safe = jnp.where(small, 1.0, omega)
+    # Straight-line (midpoint heading) when the turn is negligible: exact to O((omega dt)^2).
+    thm = th + 0.5 * omega * dt
+    x2 = jnp.where(small, x + v * dt * jnp.cos(thm), x + v / w_safe * (jnp.sin(th2) - jnp.sin(th)))
+    y2 = jnp.where(small, y + v * dt * jnp.sin(thm), y - v / w_safe * (jnp.cos(th2) - jnp.cos(th)))
+    th2 = jnp.arctan2(jnp.sin(th2), jnp.cos(th2))
+    return jnp.stack([x2, y2, th2])
+
+
+def make_params(world: World, **overrides) -> EnvParams:
+    """EnvParams for one world, or for a stacked World (leading playground axis), in which case
+    scalar fields are broadcast to that axis (pass arrays of that length to vary them)."""
+    base = EnvParams(world=world)
+    batch = world.segments.shape[:-2]
+    fields = {}
+    for name in EnvParams.__dataclass_fields__:
+        if name == "world":
+            continue
+        default = getattr(base, name)
+        value = jnp.asarray(overrides.pop(name, default), default.dtype)
+        fields[name] = jnp.broadcast_to(value, batch) if value.ndim == 0 else value
+    if overrides:
+        raise TypeError(f"EnvParams has no field '{sorted(overrides)[0]}'")
+    return base.replace(**fields)
