@@ -1,0 +1,50 @@
+"""Actor and critic (flax linen), as in SCENARIO.md section 3.
+
+Actor: obs -> depth x Dense(hidden) + activation -> two 1-d heads, sigmoid (v) and tanh (omega),
+Xavier-uniform initialised. The output is in the env's action units, (v / v_max, omega / omega_max)
+in [0, 1] x [-1, 1]; the env rescales to m/s and rad/s.
+Critic: concat(obs, action) -> depth x Dense(hidden) + activation -> Dense(1).
+"""
+from __future__ import annotations
+
+import flax.linen as nn
+import jax.numpy as jnp
+
+ACTIVATIONS = {"relu": nn.relu, "tanh": nn.tanh, "elu": nn.elu, "gelu": nn.gelu, "silu": nn.silu}
+
+
+class Actor(nn.Module):
+    hidden: int = 64
+    depth: int = 3
+    activation: str = "relu"
+
+    @nn.compact
+    def __call__(self, obs: jnp.ndarray) -> jnp.ndarray:
+        act = ACTIVATIONS[self.activation]
+        x = obs
+        for _ in range(self.depth):
+            x = act(nn.Dense(self.hidden)(x))
+        init = nn.initializers.xavier_uniform()
+        v = nn.sigmoid(nn.Dense(1, kernel_init=init, name="v_head")(x))
+        w = nn.tanh(nn.Dense(1, kernel_init=init, name="omega_head")(x))
+        return jnp.concatenate([v, w], axis=-1)
+
+
+class Critic(nn.Module):
+    hidden: int = 64
+    depth: int = 3
+    activation: str = "relu"
+
+    @nn.compact
+    def __call__(self, obs: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+        act = ACTIVATIONS[self.activation]
+        x = jnp.concatenate([obs, action], axis=-1)
+        for _ in range(self.depth):
+            x = act(nn.Dense(self.hidden)(x))
+        return nn.Dense(1)(x)[..., 0]
+
+
+def mlp_flops(in_dim: int, hidden: int, depth: int, out_dim: int) -> int:
+    """Multiply-add FLOPs (2 per MAC) of one forward pass for one input row."""
+    dims = [in_dim] + [hidden] * depth + [out_dim]
+    return 2 * sum(a * b for a, b in zip(dims[:-1], dims[1:]))

@@ -1,0 +1,197 @@
+"""Config: validation (each error names its key), overrides, round trips, the shipped presets
+against Table 2 of SCENARIO.md, and the CLI's exit code 2 on a bad config."""
+from pathlib import Path
+
+import pytest
+import yaml
+
+from fedjax_nav import cli
+from fedjax_nav.config import (
+    Config,
+    ConfigError,
+    apply_overrides,
+    diff,
+    from_dict,
+    load_config,
+    save_config,
+    to_dict,
+    traced_fields,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+THESIS = sorted((ROOT / "configs" / "thesis").glob("*.yaml"))
+PAPER = ROOT / "configs" / "paper" / "flddpg.yaml"
+SHIPPED = THESIS + [PAPER]
+
+
+def test_the_shipped_configs_are_all_there():
+    names = sorted(p.stem for p in THESIS)
+    assert names == sorted(["iddpg", "seddpg", "snddpg", "flddpg", "pwddpg", "rwddpg", "gsddpg", "flsddpg"])
+
+
+# ----------------------------------------------------------------------------- rejections
+
+
+@pytest.mark.parametrize("data, key, what", [
+    ({"ddpg": {"gama": 0.9}}, "ddpg.gama", "unknown key"),
+    ({"ddpgs": {"gamma": 0.9}}, "ddpgs", "unknown key"),
+    ({"env": {"worlds": ["train-0"], "dt_s": 0.1}}, "env.dt_s", "unknown key"),
+    ({"ddpg": {"batch_size": "big"}}, "ddpg.batch_size", "integer"),
+    ({"ddpg": {"batch_size": 8.5}}, "ddpg.batch_size", "integer"),
+    ({"ddpg": {"batch_size": True}}, "ddpg.batch_size", "integer"),
+    ({"ddpg": {"gamma": "0.9"}}, "ddpg.gamma", "number"),
+    ({"ddpg": {"gamma": float("nan")}}, "ddpg.gamma", "finite"),
+    ({"fed": {"include_targets": 1}}, "fed.include_targets", "true or false"),
+    ({"env": {"worlds": "train-0"}}, "env.worlds", "list"),
+    ({"env": {"worlds": []}}, "env.worlds", "list"),
+    ({"method": 3}, "method", "string"),
+    ({"method": "ppo"}, "method", "not one of"),
+    ({"env": {"collision_test": "sonar"}}, "env.collision_test", "not one of"),
+    ({"ddpg": {"gamma": 1.5}}, "ddpg.gamma", "out of range"),
+    ({"ddpg": {"rho": -0.1}}, "ddpg.rho", "out of range"),
+    ({"fed": {"tau": 2}}, "fed.tau", "out of range"),
+    ({"env": {"episode_length": 0}}, "env.episode_length", "out of range"),
+    ({"run": {"seeds": 0}}, "run.seeds", "out of range"),
+    ({"ddpg": "fast"}, "ddpg", "mapping"),
+])
+def test_invalid_values_are_rejected_naming_the_key(data, key, what):
+    with pytest.raises(ConfigError) as e:
+        from_dict(data, "bad.yaml")
+    msg = str(e.value)
+    assert "bad.yaml" in msg and key in msg and what in msg, msg
+
+
+@pytest.mark.parametrize("data, keys", [
+    ({"ddpg": {"buffer_size": 64, "batch_size": 128}}, ["ddpg.buffer_size", "ddpg.batch_size"]),
+    ({"ddpg": {"buffer_size": 64, "batch_size": 8, "buffer_alloc": 32}}, ["ddpg.buffer_alloc", "ddpg.buffer_size"]),
+    ({"fed": {"period": 10}, "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period", "run.episodes"]),
+    ({"fed": {"period_unit": "steps", "period": 100}, "env": {"episode_length": 16},
+      "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period"]),
+    ({"run": {"episodes": 10, "chunk_episodes": 3}}, ["run.episodes", "run.chunk_episodes"]),
+    ({"run": {"episodes": 10, "chunk_episodes": 5, "checkpoint_every": 7}}, ["run.checkpoint_every", "run.chunk_episodes"]),
+])
+def test_inconsistent_fields_are_rejected_naming_them(data, keys):
+    with pytest.raises(ConfigError) as e:
+        from_dict(data, "bad.yaml")
+    for k in keys:
+        assert k in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("method", ["iddpg", "seddpg", "snddpg"])
+def test_the_federated_period_does_not_constrain_methods_without_a_federated_step(method):
+    # `--episodes 1` with the thesis presets (E_update = 2) is a smoke run, not an error, when no
+    # federated step exists
+    cfg = load_config(ROOT / "configs" / "thesis" / f"{method}.yaml", ["run.episodes=1", "run.chunk_episodes=1",
+                                                                    "run.checkpoint_every=0"])
+    assert cfg.run.episodes == 1 and cfg.fed.period == 2
+    with pytest.raises(ConfigError, match="fed.period"):
+        load_config(ROOT / "configs" / "thesis" / "flddpg.yaml", ["run.episodes=1", "run.chunk_episodes=1",
+                                                                  "run.checkpoint_every=0"])
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("ddpg: [unclosed\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+    bad.write_text("- just\n- a list\n")
+    with pytest.raises(ConfigError, match="mapping"):
+        load_config(bad)
+
+
+def test_cli_train_with_a_bad_config_returns_2_and_names_the_key(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"method": "flddpg", "ddpg": {"gamma": 0.9, "learning_rate": 0.1}}))
+    assert cli.main(["train", "--config", str(bad), "--out", str(tmp_path / "run"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "ddpg.learning_rate" in err and str(bad) in err
+    assert len(err.strip().splitlines()) == 1  # one line, no traceback
+    assert not (tmp_path / "run").exists()  # nothing started
+    # a bad --set is reported the same way
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump({"method": "iddpg"}))
+    assert cli.main(["train", "--config", str(good), "--set", "ddpg.gamma=2", "--quiet",
+                     "--out", str(tmp_path / "run")]) == 2
+    assert "ddpg.gamma" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- overrides
+
+
+def test_set_overrides_parse_yaml_values_and_validate():
+    cfg = load_config(PAPER, ["ddpg.gamma=0.99", "env.worlds=[train-0, eval]", "fed.include_targets=true",
+                              "method=gsddpg", "ddpg.batch_size=64"])
+    assert cfg.ddpg.gamma == 0.99 and isinstance(cfg.ddpg.gamma, float)
+    assert cfg.env.worlds == ("train-0", "eval") and cfg.num_robots == 2
+    assert cfg.fed.include_targets is True and cfg.method == "gsddpg" and cfg.ddpg.batch_size == 64
+    base = load_config(PAPER)
+    assert sorted(diff(base, cfg)) == sorted(["method", "env.worlds", "ddpg.gamma", "ddpg.batch_size",
+                                              "fed.include_targets"])
+    with pytest.raises(ConfigError, match="key=value"):
+        load_config(PAPER, ["ddpg.gamma"])
+    with pytest.raises(ConfigError, match="unknown key 'optim.lr'"):
+        load_config(PAPER, ["optim.lr=0.1"])
+    with pytest.raises(ConfigError, match="ddpg.lrate"):
+        load_config(PAPER, ["ddpg.lrate=0.1"])
+    with pytest.raises(ConfigError, match="ddpg.lr"):
+        load_config(PAPER, ["ddpg.lr=fast"])
+
+
+def test_apply_overrides_does_not_mutate_the_callers_dict():
+    data = {"ddpg": {"gamma": 0.9}, "fed": None}
+    out = apply_overrides(data, ["ddpg.gamma=0.5", "fed.tau=1.0", "run.seeds=3"])
+    assert data == {"ddpg": {"gamma": 0.9}, "fed": None}
+    assert out == {"ddpg": {"gamma": 0.5}, "fed": {"tau": 1.0}, "run": {"seeds": 3}}
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_round_trip_to_dict_from_dict_and_save_load(path, tmp_path):
+    cfg = load_config(path)
+    assert cfg.method == path.stem
+    assert from_dict(to_dict(cfg)) == cfg
+    save_config(cfg, tmp_path / "c.yaml")
+    assert load_config(tmp_path / "c.yaml") == cfg
+    # the saved file is plain YAML with every section and field (one to one with the dataclasses)
+    saved = yaml.safe_load((tmp_path / "c.yaml").read_text())
+    assert set(saved) == {"method", "env", "ddpg", "fed", "run"}
+    assert set(saved["ddpg"]) == set(to_dict(Config())["ddpg"])
+
+
+def test_defaults_round_trip_and_traced_fields():
+    assert from_dict({}) == Config() == load_config(None)
+    t = traced_fields()
+    assert {"ddpg.gamma", "ddpg.rho", "ddpg.lr", "fed.tau", "fed.beta", "fed.period", "ddpg.buffer_size"} <= set(t)
+    assert "ddpg.hidden" not in t and "ddpg.batch_size" not in t and "env.episode_length" not in t
+
+
+# ----------------------------------------------------------------------------- presets (Table 2)
+
+THESIS_BUFFERS = {"iddpg": 30_000, "seddpg": 50_000, "snddpg": 70_000, "flddpg": 10_000}
+
+
+@pytest.mark.parametrize("path", THESIS, ids=lambda p: p.stem)
+def test_thesis_presets_match_table2(path):
+    c = load_config(path)
+    assert c.num_robots == 5 and "train-1" not in c.env.worlds
+    assert (c.run.episodes, c.env.episode_length) == (125, 1024)
+    assert (c.ddpg.train_every, c.ddpg.target_every, c.ddpg.batch_size) == (5, 5, 512)
+    assert (c.ddpg.epsilon_start, c.ddpg.epsilon_decay) == (0.9, 0.99997)
+    assert (c.ddpg.lr, c.ddpg.gamma, c.ddpg.rho, c.ddpg.hidden) == (1e-3, 0.9, 1.0, 64)
+    assert c.env.v_max == 0.25
+    assert (c.fed.period_unit, c.fed.period, c.fed.tau) == ("episodes", 2, 0.5)
+    if path.stem in THESIS_BUFFERS:
+        assert c.ddpg.buffer_size == THESIS_BUFFERS[path.stem]
+
+
+def test_paper_preset_matches_table2():
+    c = load_config(PAPER)
+    assert c.num_robots == 6 and c.method == "flddpg"
+    assert (c.run.episodes, c.env.episode_length, c.ddpg.buffer_size) == (1000, 256, 50_000)
+    assert (c.ddpg.epsilon_start, c.ddpg.epsilon_decay, c.ddpg.lr) == (0.9, 0.99995, 1e-4)
+    assert (c.ddpg.gamma, c.ddpg.rho, c.ddpg.batch_size, c.ddpg.hidden) == (0.9, 0.01, 512, 512)
+    assert c.env.v_max == 1.0 and (c.fed.period_unit, c.fed.period, c.fed.tau) == ("episodes", 1, 0.5)
