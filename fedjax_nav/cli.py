@@ -13,6 +13,59 @@ class UserError(Exception):
     """An input error the user can fix; printed as one line, exit code 2."""
 
 
+def _train(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from fedjax_nav.config import diff, load_config
+    from fedjax_nav.training.run import train
+
+    overrides = list(args.set or [])
+    if args.seeds is not None:
+        overrides.append(f"run.seeds={args.seeds}")
+    if args.episodes is not None:
+        overrides.append(f"run.episodes={args.episodes}")
+    if args.resume:
+        saved_path = Path(args.resume) / "config.yaml"
+        if not saved_path.exists():
+            raise UserError(f"{saved_path}: missing; {args.resume} is not a run directory")
+        cfg = load_config(saved_path)
+        if args.config or overrides:
+            asked = load_config(args.config or saved_path, overrides)
+            changed = diff(cfg, asked)
+            if changed:
+                raise UserError(f"{saved_path}: --resume with a changed config; differing fields: {', '.join(changed)}")
+        out = args.resume
+    else:
+        cfg = load_config(args.config, overrides)
+        out = args.out or f"runs/{cfg.method}-{time.strftime('%Y%m%d-%H%M%S')}"
+    verb = "resuming" if args.resume else "training"
+    print(f"{verb} {cfg.method} on {', '.join(cfg.env.worlds)}: {cfg.run.episodes} episodes x "
+          f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s) -> {out}")
+    try:
+        s = train(cfg, out, progress=not args.quiet, resume=bool(args.resume))
+    except FileExistsError as e:
+        raise UserError(str(e)) from None
+    print(f"success over the last {s['last_episodes']} episodes: {s['success_last']:.3f} "
+          f"+- {s['success_last_std']:.3f} (std over {s['seeds']} seeds); mean reward per step "
+          f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s")
+    print(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from fedjax_nav.evaluation import EvalError
+    from fedjax_nav.evaluation.protocol import evaluate_runs
+
+    try:
+        evaluate_runs(args.run_dirs, world=args.world, attempts=args.attempts, range_noise=args.range_noise,
+                      action_noise=args.action_noise, seed=args.seed, max_steps=args.max_steps, out=args.out,
+                      figures=not args.no_figures)
+    except EvalError as e:
+        raise UserError(str(e)) from None
+    return 0
+
+
 def _render(args: argparse.Namespace) -> int:
     from fedjax_nav.env.render import render_worlds
 
@@ -32,6 +85,28 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fedjax-nav", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
+    p = sub.add_parser("train", help="train a method (all robots and seeds in one program)")
+    p.add_argument("--config", required=False, default=None, help="YAML config (e.g. configs/thesis/flddpg.yaml)")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds, trained together (vmap)")
+    p.add_argument("--episodes", type=int, default=None, help="shortcut for --set run.episodes=N")
+    p.add_argument("--out", default=None, help="run directory (default runs/<method>-<time>)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
+    p.add_argument("--resume", metavar="RUN_DIR", default=None, help="continue a run from its latest checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("evaluate", help="evaluate trained agents: success, time, efficiency, trajectories")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="training run directories (several: a comparison)")
+    p.add_argument("--world", default="eval", help="evaluation world: shipped name or world file (default eval)")
+    p.add_argument("--attempts", type=int, default=4, help="attempts per agent and goal (x num_robots for SNDDPG)")
+    p.add_argument("--range-noise", type=float, default=0.01, help="std of the lidar noise in m (default 0.01)")
+    p.add_argument("--action-noise", type=float, default=0.01, help="std of the action noise, action units (0.01)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the evaluation noise")
+    p.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
+    p.add_argument("--out", default=None, help="folder for the comparison of several runs (default: next to the first)")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNGs")
+    p.set_defaults(func=_evaluate)
+
     p = sub.add_parser("render", help="draw playgrounds with a short random-policy trajectory")
     p.add_argument("worlds", nargs="*", help="world names or files (default: every shipped world)")
     p.add_argument("--out", default="runs/render", help="output folder for the PNGs")
@@ -39,8 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_render)
 
-    p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")
-    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "all"])
+    p = sub.add_parser("bench", help="measure throughput (env, train, all)")
+    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "all"])
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
     p.add_argument("--record", default=None, help="append the results to this markdown file")
     p.set_defaults(func=_bench)
@@ -48,14 +123,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from fedjax_nav.checkpoint import CheckpointError
+    from fedjax_nav.config import ConfigError
+    from fedjax_nav.training.run import DivergenceError, Interrupted
     from fedjax_nav.worlds import WorldError
 
-    args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UserError, WorldError) as e:
+    except (UserError, WorldError, ConfigError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except DivergenceError as e:
+        print(f"error: divergence: {e}; the last good checkpoint is kept (see the run's checkpoints/)", file=sys.stderr)
+        return 3
+    except Interrupted as e:
+        print(str(e), file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -1,0 +1,163 @@
+"""Throughput benchmarks: `fedjax-nav bench env|train|all` (also `python scripts/bench.py`).
+
+env:   env-only agent-steps/s (random actions, one jitted lax.scan) at batch 1, 64, 1024, 4096
+       over the thesis's training rooms (24 beams, every obstacle).
+train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per robot), timed after
+       compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of the DDPG updates against
+       the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of the
+       whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput).
+
+Results print as a table; `--record FILE` appends them, with machine, versions and command, to a
+markdown file (docs/benchmarks.md).
+"""
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _time(fn, *args, repeat: int = 3) -> float:
+    """Best wall time of `repeat` calls after one warm-up (which compiles)."""
+    jax.block_until_ready(fn(*args))
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def matmul_ceiling(n: int = 2048, repeat: int = 5) -> float:
+    """Achieved fp32 GFLOP/s of an n^3 matmul: the machine's practical ceiling right now."""
+    a = jax.random.normal(jax.random.key(0), (n, n), jnp.float32)
+    b = jax.random.normal(jax.random.key(1), (n, n), jnp.float32)
+    f = jax.jit(jnp.matmul)
+    return 2 * n**3 / _time(f, a, b, repeat=repeat) / 1e9
+
+
+def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> list[dict]:
+    from fedjax_nav import worlds
+    from fedjax_nav.env import NavEnv, make_params
+
+    names = worlds_ or worlds.THESIS_TRAIN
+    world = worlds.load_many(names)
+    env = NavEnv()
+    n = len(names)
+
+    def rollout(key, params):
+        k0, k1 = jax.random.split(key)
+        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
+        _, state = env.reset(k0, params)
+
+        def body(carry, xs):
+            state, acc = carry
+            k, a = xs
+            obs, state, r, term, trunc, _ = env.step(k, state, a, params)
+            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
+
+        (state, acc), _ = jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))
+        return acc
+
+    rows = []
+    for b in batches:
+        idx = jnp.arange(b) % n
+        params = make_params(jax.tree.map(lambda x: x[idx], world))
+        keys = jax.random.split(jax.random.key(0), b)
+        f = jax.jit(jax.vmap(rollout))
+        t = _time(f, keys, params)
+        rows.append({"bench": "env", "batch": b, "steps": steps, "agent_steps_per_s": b * steps / t})
+    return rows
+
+
+def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=()) -> list[dict]:
+    from fedjax_nav.agents.ddpg import update_flops
+    from fedjax_nav.config import load_config
+    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+
+    rows = []
+    for s in seeds:
+        cfg = load_config("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
+                          [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides])
+        tr = Trainer(cfg)
+        hp = hparams_from_config(cfg)
+        states = tr.init_seeds(jnp.arange(s), hp)
+        f = tr.compiled_chunk()
+        t0 = time.perf_counter()
+        states, m = f(states, hp, jnp.int32(0))
+        jax.block_until_ready(m)
+        compile_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        states, m = f(states, hp, jnp.int32(episodes))
+        jax.block_until_ready(m)
+        dt = time.perf_counter() - t0
+        T, N = cfg.env.episode_length, tr.num_robots
+        agent_steps = s * N * T * episodes
+        updates = s * tr.n_nets * (T // cfg.ddpg.train_every) * episodes
+        flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
+        gflops = flops / dt / 1e9
+        rows.append({
+            "bench": "train", "method": cfg.method, "seeds": s, "robots": N,
+            "agent_steps_per_s": agent_steps / dt, "agent_updates_per_s": updates / dt,
+            "gflops": gflops, "ceiling_gflops": ceiling, "fraction_of_ceiling": gflops / ceiling if ceiling else None,
+            "episode_s": dt / episodes, "run_estimate_s": dt / episodes * cfg.run.episodes,  # all seeds together
+            "compile_s_incl_first_chunk": compile_s,
+        })
+    return rows
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, {jax.default_backend()}; jax {jax.__version__}, python {platform.python_version()}"
+
+
+def format_rows(rows: list[dict]) -> str:
+    lines = []
+    for r in rows:
+        if r["bench"] == "env":
+            lines.append(f"| env | batch {r['batch']} | {r['agent_steps_per_s']:,.0f} agent-steps/s |")
+        elif r["bench"] == "ceiling":
+            lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
+        else:
+            lines.append(
+                f"| train {r['method']} | {r['seeds']} seed(s) x {r['robots']} robots | "
+                f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} agent-updates/s, "
+                f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
+                f"episode {r['episode_s']:.2f} s, 125-episode run (all its seeds) ~{r['run_estimate_s']:.0f} s; "
+                f"compile+first chunk {r['compile_s_incl_first_chunk']:.1f} s |"
+            )
+    return "\n".join(lines)
+
+
+def main(args) -> int:
+    what = getattr(args, "what", "env")
+    quick = getattr(args, "quick", False)
+    rows: list[dict] = []
+    if what in ("env", "all"):
+        rows += bench_env(batches=(1, 64) if quick else (1, 64, 1024, 4096), steps=20 if quick else 200)
+    if what in ("train", "all"):
+        ceiling = matmul_ceiling(512 if quick else 2048)
+        rows.append({"bench": "ceiling", "gflops": ceiling})
+        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
+        rows += bench_train(seeds=(1,) if quick else (1, 4), ceiling=ceiling, overrides=over)
+        rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
+    table = format_rows(rows)
+    print(table)
+    record = getattr(args, "record", None)
+    if record:
+        cmd = "fedjax-nav bench " + " ".join(sys.argv[2:]) if sys.argv[0].endswith("fedjax-nav") else " ".join(sys.argv)
+        with open(record, "a") as f:
+            f.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `{cmd}`\n\nMachine: {machine()}\n\n"
+                    f"| what | setting | result |\n|---|---|---|\n{table}\n")
+        print(f"appended to {record}")
+    return 0
