@@ -1,0 +1,298 @@
+"""The evaluation protocol: scripted policies with known outcomes on tiny hand-built worlds, the
+metrics' bookkeeping, determinism without noise, and `fedjax-nav evaluate` on a tiny trained run.
+
+Every scripted test uses the same padded world shape, T and policy objects where it can, so the
+evaluation program compiles a few times for the whole file.
+"""
+import json
+import math
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import yaml  # noqa: E402
+
+from fedjax_nav import worlds  # noqa: E402
+from fedjax_nav.evaluation import (  # noqa: E402
+    EvalError,
+    episodes_frame,
+    evaluate_policy,
+    load_run,
+    summarize,
+)
+
+T = 100  # time-out of the scripted tests
+V_MAX = 1.0  # m/s: 0.1 m per step, so the 6.5 m drive takes 66 steps
+DT = 0.1
+GOAL_RADIUS = 0.5
+SHAPE = (8, 2, 2, 4)  # padded (segments, circles, starts, goals) of every hand-built world
+
+
+def _world(start, goals, size=(10.0, 2.0)):
+    w, _ = worlds.from_dict({"size": list(size), "starts": [start], "goals": goals}, "<test>")
+    return worlds.pad(w, *SHAPE)
+
+
+# start at x = -4 facing +x; G0 7 m straight ahead, G1 1 m ahead, G2 3 m ahead
+CORRIDOR = _world([-4.0, 0.0, 0.0], [[3.0, 0.0], [-3.0, 0.0], [-1.0, 0.0]])
+# facing the left wall (x = -5), 1 m away; the goals are behind the robot
+FACING_WALL = _world([-4.0, 0.0, math.pi], [[3.0, 0.0], [-3.0, 0.0], [-1.0, 0.0]])
+A, K = 4, 2  # agents and attempts of every scripted run (one compiled program serves them all)
+
+
+def at_goal(obs):
+    """Turn on the spot towards the goal, then drive straight at it at full speed."""
+    bearing = obs[-3]
+    omega = jnp.clip(bearing / (1.0 * DT), -1.0, 1.0)  # omega_max = 1 rad/s
+    v = jnp.where(jnp.abs(bearing) < 1e-3, 1.0, 0.0)
+    return jnp.stack([v, omega])
+
+
+def scripted(p, obs):
+    """A policy with per-agent parameters p = (speed, blind): drive at the goal with
+    v = speed * v_max, or (blind = 1) straight ahead at that speed whatever the sensors say."""
+    return jnp.where(p[1] > 0.5, jnp.stack([p[0], 0.0]), at_goal(obs) * jnp.stack([p[0], 1.0]))
+
+
+def forward(obs):
+    """Full speed ahead (an observation-only policy: no parameters)."""
+    return jnp.array([1.0, 0.0])
+
+
+def agents(*rows):
+    rows = rows if len(rows) == A else rows * A
+    return jnp.asarray(rows, jnp.float32)
+
+
+DRIVE = agents((1.0, 0.0))
+STILL = agents((0.0, 0.0))
+
+
+def run(params=DRIVE, world=CORRIDOR, policy=scripted, **kw):
+    kw.setdefault("range_noise", 0.0)
+    kw.setdefault("action_noise", 0.0)
+    return evaluate_policy(policy, world, params, attempts=K, max_steps=T, v_max=V_MAX, dt=DT,
+                           goal_radius=GOAL_RADIUS, **kw)
+
+
+def test_straight_at_goal_succeeds_with_efficiency_one():
+    r = run()
+    assert r.shape == (A, 3, K)
+    assert r.success.all() and not r.collision.any() and not r.timeout.any()
+    straight = np.array([6.5, 0.5, 2.5])  # |goal - start| - goal radius
+    np.testing.assert_allclose(r.straight_line, straight, atol=1e-6)
+    np.testing.assert_allclose(r.start_goal_distance, straight + GOAL_RADIUS, atol=1e-6)
+    step = V_MAX * DT
+    # time = (distance - goal radius) / speed, up to the step that crosses into the radius
+    expected_time = straight / V_MAX
+    assert np.all(r.time_s >= expected_time[None, :, None] - 1e-6)
+    assert np.all(r.time_s <= expected_time[None, :, None] + DT + 1e-6)
+    # the path is the straight line plus at most one step of overshoot: efficiency ~ 1
+    assert np.all(r.path_length <= straight[None, :, None] + step + 1e-4)
+    assert np.all(r.efficiency <= 1.0 + 1e-6)
+    assert np.all(r.efficiency >= straight[None, :, None] / (straight[None, :, None] + step) - 1e-4)
+    np.testing.assert_allclose(r.efficiency[0, 0], 1.0, atol=step / 6.5 + 1e-4)
+    # the trajectory: starts at the start, ends within the goal radius, frozen afterwards
+    p = r.poses[0, 0, 0]
+    assert p.shape == (T + 1, 3)
+    np.testing.assert_allclose(p[0], [-4.0, 0.0, 0.0], atol=1e-6)
+    n = int(r.steps[0, 0, 0])
+    assert np.linalg.norm(p[n, :2] - r.goals[0]) < GOAL_RADIUS
+    assert np.linalg.norm(p[n - 1, :2] - r.goals[0]) >= GOAL_RADIUS
+    np.testing.assert_array_equal(p[n:], np.broadcast_to(p[n], p[n:].shape))
+    # path length equals the polyline length of the recorded poses
+    np.testing.assert_allclose(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum(), r.path_length[0, 0, 0],
+                               rtol=1e-4)
+
+
+def test_driving_into_a_wall_fails():
+    r = run(None, FACING_WALL, forward, num_agents=A)
+    assert r.shape == (A, 3, K)
+    np.testing.assert_array_equal(r.poses, run(agents((1.0, 1.0)), FACING_WALL).poses)
+    assert not r.success.any()
+    assert r.collision.all() and not r.timeout.any()
+    # the wall is 1 m ahead; a collision within D_c = 0.25 m: after 8 steps of 0.1 m
+    assert np.all(r.steps == 8)
+    assert np.all(np.isnan(r.efficiency))
+    s = summarize(episodes_frame(r))["all_agents"]["overall"]
+    assert s["success_rate"] == 0.0 and s["collisions"] == s["episodes"] == A * 3 * K
+    assert s["time_mean"] is None and s["efficiency_mean"] is None
+
+
+def test_time_outs_count_as_failures():
+    r = run(STILL)
+    assert r.timeout.all() and not r.success.any() and not r.collision.any()
+    assert np.all(r.steps == T)
+    np.testing.assert_allclose(r.time_s, T * DT)
+    assert np.all(r.path_length == 0.0)
+    s = summarize(episodes_frame(r))["all_agents"]["overall"]
+    assert s["success_rate"] == 0.0 and s["timeouts"] == s["episodes"] == A * 3 * K
+
+
+def test_per_goal_counts_add_up_and_best_agent_per_seed():
+    # 4 agents: v = 1, 0.7, 0 (times out), 0.1 (reaches only G1, 0.5 m, within T)
+    r = run(agents((1.0, 0.0), (0.7, 0.0), (0.0, 0.0), (0.1, 0.0)))
+    assert r.shape == (4, 3, K)
+    seeds = np.array([10, 10, 11, 11])
+    df = episodes_frame(r, agent_seed=seeds, agent_net=np.array([0, 1, 0, 1]))
+    assert len(df) == 4 * 3 * K
+    assert (df["success"] + df["collision"] + df["timeout"]).eq(1).all()
+    s = summarize(df)
+    per_goal = s["all_agents"]["per_goal"]
+    overall = s["all_agents"]["overall"]
+    assert [g["goal"] for g in per_goal] == [0, 1, 2]
+    for key in ("episodes", "successes", "collisions", "timeouts"):
+        assert sum(g[key] for g in per_goal) == overall[key]
+    assert all(g["episodes"] == 4 * K for g in per_goal)
+    # agents 0, 1 succeed everywhere; agent 2 nowhere; agent 3 only at G1
+    succ = r.success.all(axis=2)
+    assert succ[0].all() and succ[1].all() and not r.success[2].any()
+    assert list(r.success[3].any(axis=1)) == [False, True, False]
+    assert overall["successes"] == int(r.success.sum())
+    np.testing.assert_allclose(overall["success_rate"], r.success.mean())
+    ok = df[df.success == 1]
+    np.testing.assert_allclose(overall["time_mean"], ok.time_s.mean())
+    np.testing.assert_allclose(overall["time_std"], ok.time_s.std(ddof=0))
+    # slower agent: same path, longer time; time = straight / v within a step
+    assert np.all(r.time_s[1, 0] >= 6.5 / 0.7 - 1e-4) and np.all(r.time_s[1, 0] <= 6.5 / 0.7 + DT + 1e-4)
+    np.testing.assert_allclose(r.path_length[1], r.path_length[0], atol=V_MAX * DT + 1e-4)  # overshoot
+    # best agent per seed: seed 10 -> agent 0 (same success as 1, faster); seed 11 -> agent 3
+    best = s["best_agent_per_seed"]
+    assert best["agents"] == [0, 3]
+    assert "evaluation data" in best["note"]
+    assert best["overall"]["episodes"] == 2 * 3 * K
+    assert s["all_agents"]["success_per_seed"]["11"] == pytest.approx(r.success[2:].mean())
+    assert [a["success_rate"] for a in s["per_agent"]] == pytest.approx(list(r.success.mean(axis=(1, 2))))
+
+
+def test_zero_noise_is_deterministic_and_noise_makes_attempts_differ():
+    a = run(seed=1)
+    b = run(seed=2)
+    for x, y in [(a.poses, b.poses), (a.steps, b.steps), (a.success, b.success), (a.path_length, b.path_length)]:
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.poses[:, :, 0], a.poses[:, :, 1])  # attempts identical too
+    n1 = run(seed=1, range_noise=0.01, action_noise=0.05)
+    n2 = run(seed=1, range_noise=0.01, action_noise=0.05)
+    np.testing.assert_array_equal(n1.poses, n2.poses)  # same seed, same noise
+    assert not np.array_equal(n1.poses[:, :, 0], n1.poses[:, :, 1])  # attempts differ
+    assert n1.range_noise == 0.01 and n1.action_noise == 0.05
+
+
+def test_one_compilation_for_every_setting_of_the_same_shapes():
+    from fedjax_nav.evaluation import protocol
+
+    run(seed=5)
+    program = protocol._program((24, 3.5, T, "exact"), scripted, 64)
+    before = program._cache_size()
+    run(STILL, FACING_WALL, seed=6, range_noise=0.3, action_noise=0.2)  # other world data, noise, params
+    assert program._cache_size() == before == 1
+
+
+def test_invalid_inputs(tmp_path):
+    with pytest.raises(EvalError, match="attempts"):
+        evaluate_policy(forward, CORRIDOR, attempts=0)
+    with pytest.raises(EvalError, match="goals"):
+        evaluate_policy(forward, CORRIDOR, goals=[5])
+    with pytest.raises(EvalError, match="no such run directory"):
+        load_run(tmp_path / "nope")
+    (tmp_path / "half").mkdir()
+    with pytest.raises(EvalError, match="params.npz"):
+        (tmp_path / "half" / "config.yaml").write_text("method: iddpg\n")
+        load_run(tmp_path / "half")
+
+
+# ----------------------------------------------------------------------------- runs and the CLI
+
+
+TINY_WORLD = {
+    "size": [4.0, 4.0],
+    "circles": [[0.0, 1.0, 0.2]],
+    "starts": [[-1.0, -1.0, 0.0]],
+    "goals": [[1.2, 1.2], [-1.2, 1.2]],
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """An IDDPG run trained for 1 episode of 16 steps on 2 copies of a tiny room, 2 seeds."""
+    from fedjax_nav.config import from_dict
+    from fedjax_nav.training.run import train
+
+    root = tmp_path_factory.mktemp("evalrun")
+    world_file = root / "tiny.yaml"
+    world_file.write_text(yaml.safe_dump(TINY_WORLD))
+    cfg = from_dict({
+        "method": "iddpg",
+        "env": {"worlds": [str(world_file)] * 2, "episode_length": 16},
+        "ddpg": {"hidden": 16, "depth": 2, "buffer_size": 64, "batch_size": 8},
+        "fed": {"period": 1},
+        "run": {"episodes": 1, "seeds": 2, "chunk_episodes": 1, "checkpoint_every": 0},
+    })
+    out = root / "iddpg"
+    train(cfg, out, progress=False)
+    return out, world_file
+
+
+def _fake_snddpg(run_dir, dest):
+    """A run directory shaped like SNDDPG's (one network per seed) from the IDDPG run."""
+    dest.mkdir()
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    cfg["method"] = "snddpg"
+    (dest / "config.yaml").write_text(yaml.safe_dump(cfg))
+    with np.load(run_dir / "params.npz") as z:
+        np.savez(dest / "params.npz", **{k: z[k][:, :1] for k in z.files})
+    return dest
+
+
+def test_load_run_shapes(tiny_run):
+    run_dir, _ = tiny_run
+    run = load_run(run_dir)
+    assert run.num_agents == 4 and run.n_nets == 2 and run.num_robots == 2
+    assert list(run.agent_seed) == [0, 0, 1, 1] and list(run.agent_net) == [0, 1, 0, 1]
+    assert run.actor_params["params"]["Dense_0"]["kernel"].shape == (4, 28, 16)
+
+
+def test_cli_evaluate_writes_results_and_figures(tiny_run, tmp_path, capsys):
+    from fedjax_nav.cli import main
+
+    run_dir, world_file = tiny_run
+    sn = _fake_snddpg(run_dir, tmp_path / "snddpg")
+    out = tmp_path / "cmp"
+    rc = main(["evaluate", str(run_dir), str(sn), "--world", str(world_file), "--attempts", "2",
+               "--range-noise", "0.02", "--action-noise", "0.03", "--seed", "3", "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "noise" in printed and "0.02" in printed and "0.03" in printed
+    assert "selected on evaluation data" in printed
+    for d in (run_dir, sn):
+        for name in ("eval.json", "eval_episodes.csv", "eval_trajectories.npz", "eval_bars.png",
+                     "eval_trajectories.png"):
+            assert (d / name).stat().st_size > 0, (d, name)
+    a = json.loads((run_dir / "eval.json").read_text())
+    b = json.loads((sn / "eval.json").read_text())
+    assert a["noise"]["range_noise"] == 0.02 and a["noise"]["action_noise"] == 0.03
+    assert a["max_steps"] == 16 and a["eval_seed"] == 3
+    # per-robot: 4 agents x 2 goals x 2 attempts; shared network: 2 agents x 2 goals x 4 attempts
+    assert (a["agents"], a["attempts_per_agent"], a["episodes"]) == (4, 2, 16)
+    assert (b["agents"], b["attempts_per_agent"], b["episodes"]) == (2, 4, 16)
+    o = a["all_agents"]["overall"]
+    assert sum(g["episodes"] for g in a["all_agents"]["per_goal"]) == o["episodes"] == 16
+    assert o["successes"] + o["collisions"] + o["timeouts"] == 16
+    import pandas as pd
+
+    df = pd.read_csv(run_dir / "eval_episodes.csv")
+    assert len(df) == 16 and df["success"].sum() == o["successes"]
+    for name in ("eval_comparison.csv", "eval_comparison.md", "eval_comparison.png"):
+        assert (out / name).stat().st_size > 0
+    cmp = pd.read_csv(out / "eval_comparison.csv")
+    assert list(cmp["method"]) == ["iddpg", "snddpg"]
+
+
+def test_cli_evaluate_bad_run_dir(tmp_path, capsys):
+    from fedjax_nav.cli import main
+
+    assert main(["evaluate", str(tmp_path / "missing")]) == 2
+    assert "no such run directory" in capsys.readouterr().err
