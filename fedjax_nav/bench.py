@@ -65,13 +65,25 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
         return acc
 
     rows = []
+    ndev = jax.local_device_count()
     for b in batches:
         idx = jnp.arange(b) % n
         params = make_params(jax.tree.map(lambda x: x[idx], world))
         keys = jax.random.split(jax.random.key(0), b)
         f = jax.jit(jax.vmap(rollout))
         t = _time(f, keys, params)
-        rows.append({"bench": "env", "batch": b, "steps": steps, "agent_steps_per_s": b * steps / t})
+        rows.append({"bench": "env", "batch": b, "devices": 1, "steps": steps, "agent_steps_per_s": b * steps / t})
+        if ndev > 1 and b % ndev == 0 and b >= 64:
+            # The same program with the batch split over one CPU device per core (shard_map).
+            from jax.sharding import NamedSharding
+            from jax.sharding import PartitionSpec as P
+
+            mesh = jax.make_mesh((ndev,), ("batch",), axis_types=(jax.sharding.AxisType.Explicit,))
+            put = lambda x: jax.device_put(x, NamedSharding(mesh, P("batch")))  # noqa: E731
+            g = jax.jit(jax.shard_map(jax.vmap(rollout), mesh=mesh, in_specs=(P("batch"), P("batch")),
+                                      out_specs=P("batch"), check_vma=False))
+            t = _time(g, put(keys), jax.tree.map(put, params))
+            rows.append({"bench": "env", "batch": b, "devices": ndev, "steps": steps, "agent_steps_per_s": b * steps / t})
     return rows
 
 
@@ -125,7 +137,7 @@ def format_rows(rows: list[dict]) -> str:
     lines = []
     for r in rows:
         if r["bench"] == "env":
-            lines.append(f"| env | batch {r['batch']} | {r['agent_steps_per_s']:,.0f} agent-steps/s |")
+            lines.append(f"| env | batch {r['batch']}, {r['devices']} device(s) | {r['agent_steps_per_s']:,.0f} agent-steps/s |")
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
@@ -149,7 +161,7 @@ def main(args) -> int:
         ceiling = matmul_ceiling(512 if quick else 2048)
         rows.append({"bench": "ceiling", "gflops": ceiling})
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
-        rows += bench_train(seeds=(1,) if quick else (1, 4), ceiling=ceiling, overrides=over)
+        rows += bench_train(seeds=(1,) if quick else (1, 8), ceiling=ceiling, overrides=over)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
     table = format_rows(rows)
     print(table)

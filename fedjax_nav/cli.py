@@ -6,6 +6,7 @@ Input errors (bad config, world file, checkpoint) end with one line and exit cod
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 
@@ -124,6 +125,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "bench" and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        # One XLA CPU device keeps only ~1-1.5 cores busy on these programs; the benchmark also
+        # measures the batch split over one device per core (must be set before jax starts).
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                                   f" --xla_force_host_platform_device_count={os.cpu_count() or 1}").strip()
     from fedjax_nav.checkpoint import CheckpointError
     from fedjax_nav.config import ConfigError
     from fedjax_nav.training.run import DivergenceError, Interrupted

@@ -8,6 +8,9 @@ import json
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# A persistent compilation cache shared by the test process and the subprocesses it starts
+# (the CLI tests compile the same trainer again in each subprocess).
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "fedjax_nav_jax"))
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -1,0 +1,18 @@
+"""The benchmark functions run and report positive, consistent numbers (tiny sizes)."""
+from fedjax_nav import bench
+from fedjax_nav.agents.ddpg import update_flops
+
+
+def test_env_bench_reports_throughput():
+    rows = bench.bench_env(batches=(2,), steps=5)
+    assert rows[0]["batch"] == 2 and rows[0]["agent_steps_per_s"] > 0
+    assert "agent-steps/s" in bench.format_rows(rows)
+
+
+def test_update_flops_matches_hand_count():
+    # 64x3 networks, obs 28, action 2: actor fwd 2*(28*64 + 2*64*64 + 64*2), critic fwd
+    # 2*(30*64 + 2*64*64 + 64*1); one update = 4 actor fwd + 6 critic fwd per row (see docstring).
+    fa = 2 * (28 * 64 + 2 * 64 * 64 + 64 * 2)
+    fc = 2 * (30 * 64 + 2 * 64 * 64 + 64 * 1)
+    assert update_flops(28, 64, 3, 512) == 512 * (4 * fa + 6 * fc)
+    assert 95e6 < update_flops(28, 64, 3, 512) < 110e6  # "about 98 MFLOP per agent" (issue 3)
