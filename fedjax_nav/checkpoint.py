@@ -4,10 +4,15 @@ A checkpoint at step `e` (episodes completed) holds the stacked TrainState of ev
 (parameters, targets, optimiser states, replay buffers, env states, epsilon, PRNG keys) and the
 metrics of episodes 0 .. e-1, so a resumed run rebuilds metrics.csv and continues bitwise as the
 run that was never interrupted. Saves are asynchronous; a kill during a save leaves a temporary
-folder that `latest_step()` ignores, so the previous checkpoint is used.
+folder that `latest_step()` ignores, so the previous checkpoint is used. Every checkpoint also holds
+a crc32 of each state array, checked on restore: a damaged file that still decodes is detected.
 """
 from __future__ import annotations
 
+import re
+import sys
+import warnings
+import zlib
 from pathlib import Path
 
 import jax
@@ -35,6 +40,7 @@ class Checkpointer:
 
     def save(self, episodes_done: int, states, metrics: dict) -> None:
         metrics = {k: np.asarray(v) for k, v in metrics.items()}
+        metrics[_CRC] = _checksums(states)
         self.manager.save(
             episodes_done,
             args=ocp.args.Composite(state=ocp.args.StandardSave(states), episode_history=ocp.args.StandardSave(metrics)),
@@ -50,16 +56,32 @@ class Checkpointer:
             raise CheckpointError(f"{self.dir}: no checkpoint to resume from")
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
         path = self.dir / str(step)
+        _check_stored_shapes(path, template)  # before any read: e.g. other network sizes, by field
+        _quiet_abandoned_reads()
         try:
             out = self.manager.restore(
                 step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract),
                                               episode_history=ocp.args.StandardRestore()),
             )
         except Exception as e:  # orbax raises many types: name the file and what did not match
+            # tensorstore could not read (decode) an array: its spec names the file's folder, then the array
+            fields = [f.rstrip("/") for f in re.findall(r"'path': '([^']+)'", str(e)) if "/" not in f.rstrip("/")]
+            if fields:
+                raise CheckpointError(f"{path}: field {fields[-1]} cannot be read; the checkpoint is corrupted "
+                                      "or incomplete (resume from an earlier step or restart)") from None
             msg = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
             raise CheckpointError(f"{path}: cannot restore this checkpoint into the run's state ({msg})") from None
         _check_shapes(out.state, template, path)
-        return out.state, {k: np.asarray(v) for k, v in out.episode_history.items()}
+        history = {k: np.asarray(v) for k, v in out.episode_history.items()}
+        saved_crc = history.pop(_CRC, None)
+        if saved_crc is not None:  # checkpoints written before checksums existed have none
+            crc = _checksums(out.state)
+            bad = np.nonzero(crc != saved_crc)[0] if crc.shape == saved_crc.shape else [0]
+            if len(bad):
+                kp = jax.tree_util.tree_flatten_with_path(out.state)[0][bad[0]][0]
+                raise CheckpointError(f"{path}: field {'.'.join(_names(kp))} does not match the checksum saved with "
+                                      "it; the checkpoint is corrupted (resume from an earlier step or restart)")
+        return out.state, history
 
     def wait(self) -> None:
         self.manager.wait_until_finished()
@@ -67,6 +89,64 @@ class Checkpointer:
     def close(self) -> None:
         self.manager.wait_until_finished()
         self.manager.close()
+
+
+_CRC = "state_crc32"  # key in the episode_history item
+
+
+def _names(kp) -> tuple:
+    return tuple(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in kp)
+
+
+def _is_key(x) -> bool:
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def _checksums(states) -> np.ndarray:
+    """crc32 of every leaf (PRNG keys by their key data), in tree order."""
+    def raw(x):
+        x = np.ascontiguousarray(jax.device_get(jax.random.key_data(x) if _is_key(x) else x))
+        return x.reshape(-1).view(np.uint8)
+
+    return np.array([zlib.crc32(raw(x)) for x in jax.tree.leaves(states)], np.uint32)
+
+
+def _check_stored_shapes(path: Path, template) -> None:
+    """Raise a CheckpointError naming the first field whose stored shape differs from the template's."""
+    try:
+        with ocp.StandardCheckpointer() as ck:
+            meta = ck.metadata(path / "state").item_metadata
+        stored = {_names(kp): tuple(v.shape) for kp, v in jax.tree_util.tree_flatten_with_path(meta)[0]
+                  if hasattr(v, "shape")}
+    except Exception:  # unreadable metadata: the caller reports the original error
+        return
+    for kp, t in jax.tree_util.tree_flatten_with_path(template)[0]:
+        name = _names(kp)
+        if not _is_key(t) and name in stored and stored[name] != tuple(np.shape(t)):
+            raise CheckpointError(
+                f"{path}: field {'.'.join(name)} has shape {list(stored[name])}, the config needs "
+                f"{list(np.shape(t))} (were the network sizes, robots, seeds or buffer changed?)"
+            )
+
+
+def _quiet_abandoned_reads() -> None:
+    """When a restore fails, orbax closes its event loop while other tensorstore reads are still
+    in flight; they report into the closed loop through sys.unraisablehook, at any time from then
+    on (tracebacks around the one-line error), and the reads never started warn at exit. Drop those
+    reports (installed once, before restores)."""
+    warnings.filterwarnings("ignore", message=r"coroutine '.*' was never awaited", category=RuntimeWarning)
+    prev = sys.unraisablehook
+    if getattr(prev, "_fedjax_nav", False):
+        return
+
+    def hook(u):
+        msg = str(u.exc_value)
+        if msg == "Event loop is closed" or "error while reading array" in msg:
+            return
+        prev(u)
+
+    hook._fedjax_nav = True
+    sys.unraisablehook = hook
 
 
 def _check_shapes(restored, template, path: Path) -> None:

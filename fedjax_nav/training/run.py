@@ -30,8 +30,12 @@ def atomic_write(path: Path, write) -> None:
     """Call write(tmp_path), then rename onto path: readers never see a half-written file."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    write(tmp)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:  # e.g. a full disk: keep the old file, leave no half-written temporary
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def metrics_frame(metrics: dict, first_episode: int, cfg: Config, trainer: Trainer) -> pd.DataFrame:
@@ -137,6 +141,8 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     if resume:
         states, metrics = ckpt.restore(states)
         start = int(ckpt.latest())
+        all_df = metrics_frame(metrics, 0, cfg, trainer)  # also when the run had already finished
+        atomic_write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
     elif ckpt.latest() is not None:
         raise FileExistsError(f"{out}: already holds checkpoints; resume it with --resume {out} or pick another --out")
     atomic_write(out / "config.yaml", lambda p: save_config(cfg, p))
