@@ -31,19 +31,27 @@ def curves(df: pd.DataFrame, metric: str, window: int = 10) -> tuple[np.ndarray,
     return table.index.to_numpy(), smooth.mean(1), smooth.std(1)
 
 
+def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Save a matplotlib Figure atomically (temporary file, then rename): a reader never sees a
+    half-written PNG."""
+    from fedjax_nav.training.run import atomic_write
+
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png"))
+    return path
+
+
 def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -> Path:
     """Success and reward curves (10-episode SMA, mean and spread over seeds).
 
     runs: a metrics DataFrame, or a dict label -> DataFrame to draw several methods together.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: the caller's backend is left alone
 
     if isinstance(runs, pd.DataFrame):
         runs = {"": runs}
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig = Figure(figsize=(10, 3.6), layout="constrained")
+    axes = fig.subplots(1, 2)
     for label, df in runs.items():
         for ax, metric, name in zip(axes, ["success", "reward"], ["success proportion", "mean reward per step"]):
             ep, mu, sd = curves(df, metric, window)
@@ -55,10 +63,4 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
     if any(runs):
         axes[0].legend(fontsize=8)
     fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    return save_figure(fig, path)

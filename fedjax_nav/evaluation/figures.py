@@ -26,11 +26,9 @@ def _figure(w: float, h: float):
 
 
 def _save(fig, path: Path, dpi: int = 100) -> Path:
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=dpi)
-    tmp.replace(path)
-    return path
+    from fedjax_nav.analysis.plots import save_figure
+
+    return save_figure(fig, path, dpi)
 
 
 def _num(x) -> float:
