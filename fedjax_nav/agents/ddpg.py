@@ -102,8 +102,8 @@ def update_flops(obs_size: int, hidden: int, depth: int, batch: int, action_size
     """FLOPs of one `update` (matmuls only): forward = 2 MAC, backward = 2x forward.
 
     critic step: target actor fwd + target critic fwd + critic fwd/bwd (3x);
-    actor step: actor fwd/bwd (3x) + critic fwd/bwd w.r.t. its input (the weight gradient is not
-    needed, but XLA computes what the graph asks: count 3x to be conservative -> 2x here).
+    actor step: actor fwd/bwd (3x) + critic fwd and its backward to the input only (2x: the
+    critic's weight gradient is not taken there).
     """
     from fedjax_nav.agents.networks import mlp_flops
 

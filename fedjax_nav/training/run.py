@@ -38,11 +38,12 @@ def atomic_write(path: Path, write) -> None:
         raise
 
 
-def metrics_frame(metrics: dict, first_episode: int, cfg: Config, trainer: Trainer) -> pd.DataFrame:
-    """Flatten chunk metrics (leaves [seeds, episodes, ...]) into rows episode x seed x robot."""
+def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
+    """Flatten the metrics of episodes 0.. (leaves [seeds, episodes, ...]) into rows
+    episode x seed x robot."""
     m = jax.device_get(metrics)
     S, E, N = m["reward"].shape
-    ep, seed, robot = np.meshgrid(np.arange(E) + first_episode, np.arange(S) + cfg.run.seed, np.arange(N), indexing="ij")
+    ep, seed, robot = np.meshgrid(np.arange(E), np.arange(S) + cfg.run.seed, np.arange(N), indexing="ij")
     net = np.zeros(N, int) if trainer.n_nets == 1 else np.arange(N)
     per_net = lambda x: np.transpose(x, (1, 0, 2))[:, :, net]  # noqa: E731  [E, S, N]
     per_seed = lambda x: np.broadcast_to(np.transpose(x, (1, 0))[:, :, None], (E, S, N))  # noqa: E731
@@ -133,7 +134,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     trainer = Trainer(cfg)
-    hp = hp or hparams_from_config(cfg)
+    hp = hparams_from_config(cfg) if hp is None else hp
     seeds = jnp.arange(cfg.run.seeds) + cfg.run.seed
     states = trainer.init_seeds(seeds, hp)
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints)
@@ -141,7 +142,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     if resume:
         states, metrics = ckpt.restore(states)
         start = int(ckpt.latest())
-        all_df = metrics_frame(metrics, 0, cfg, trainer)  # also when the run had already finished
+        all_df = metrics_frame(metrics, cfg, trainer)  # also when the run had already finished
         atomic_write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
     elif ckpt.latest() is not None:
         raise FileExistsError(f"{out}: already holds checkpoints; resume it with --resume {out} or pick another --out")
@@ -170,7 +171,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
                 t_compile = time.time() - tc
             check_finite(m, first, cfg, trainer)
             metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
-            all_df = metrics_frame(metrics, 0, cfg, trainer)
+            all_df = metrics_frame(metrics, cfg, trainer)
             atomic_write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
             done = first + K
             last = all_df[all_df.episode == done - 1]

@@ -116,7 +116,7 @@ class Trainer:
         )
 
     def init_seeds(self, seeds: jax.Array, hp: HParams) -> TrainState:
-        """Stacked states for integer seeds f32[S] (hp leaves scalar or [S])."""
+        """Stacked states for integer seeds i32[S] (hp leaves scalar or [S])."""
         init = jax.vmap(lambda s, h: self.init(jax.random.key(s), h), in_axes=(0, hp_axes(hp)))
         return jax.jit(init)(seeds, hp)  # jit: op-by-op init of the buffers took ~20 s under load
 
