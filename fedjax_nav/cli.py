@@ -82,6 +82,27 @@ def _bench(args: argparse.Namespace) -> int:
     return bench_main(args)
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from fedjax_nav.sweep import SweepError, load_sweep, parse_bytes, run_sweep
+
+    try:
+        sweep = load_sweep(args.file, overrides=list(args.set or []), seeds=args.seeds)
+        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
+    except SweepError as e:
+        raise UserError(str(e)) from None
+    out = Path(args.out or f"runs/sweeps/{sweep.name}")
+    summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet)
+    if len(summ):
+        cols = ["label", "seeds", "success_last", "success_last_std", "reward_last", "reward_last_std"]
+        print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    traces = ", ".join(f"{g['method']}: {g['traces']}" for g in stats["groups"]) or "none (all points were done)"
+    print(f"{stats['wall_s']:.0f} s; compilations per group: {traces}")
+    print(f"wrote {out}/ (summary.csv, results.csv, learning_curves.png, points/<id>/ run directories)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fedjax-nav", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -114,6 +135,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=300, help="random-policy steps to draw")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_render)
+
+    p = sub.add_parser("sweep", help="train a grid of settings x seeds, one compilation per static group")
+    p.add_argument("file", help="sweep file (e.g. configs/sweeps/tau.yaml)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per grid point (default: the file's)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a field of every point")
+    p.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>); run again to resume")
+    p.add_argument("--memory-budget", default=None, metavar="SIZE",
+                   help="memory for one batch of runs, e.g. 4G (default: half of the available memory)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_sweep)
 
     p = sub.add_parser("bench", help="measure throughput (env, train, all)")
     p.add_argument("what", nargs="?", default="env", choices=["env", "train", "all"])

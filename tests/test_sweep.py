@@ -1,0 +1,243 @@
+"""Sweeps: the files of configs/sweeps/, grouping by static structure, one compilation per group,
+each grid point equal to the same config trained alone, resume after a kill, the CLI.
+
+One tiny FLDDPG sweep (tau x buffer size, 2 seeds, 2 episodes of 16 steps) is trained once per
+module and read by most tests; the others train the same group again (the persistent
+compilation cache of conftest.py makes that cheap).
+"""
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from fedjax_nav import cli
+from fedjax_nav import sweep as sw
+from fedjax_nav.training.run import train
+
+ROOT = Path(__file__).resolve().parents[1]
+SWEEPS = sorted((ROOT / "configs" / "sweeps").glob("*.yaml"))
+TINY_SET = ["env.episode_length=16", "run.chunk_episodes=1", "ddpg.batch_size=8", "ddpg.hidden=16",
+            "run.checkpoint_every=0", "run.episodes=2", "fed.period=1"]
+
+
+def write_sweep(folder: Path, name: str = "tiny", **extra) -> Path:
+    spec = {"name": name, "base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"), "seeds": 2, "set": TINY_SET,
+            "grid": {"fed.tau": [0.0, 0.5, 1.0], "ddpg.buffer_size": [16, 48]}}
+    spec.update(extra)
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sweep")
+    sweep = sw.load_sweep(write_sweep(folder))
+    out = folder / "out"
+    summ, stats = sw.run_sweep(sweep, out, progress=False, echo=lambda s: None)
+    return {"folder": folder, "sweep": sweep, "out": out, "summary": summ, "stats": stats}
+
+
+# ----------------------------------------------------------------------------- the files
+
+
+@pytest.mark.parametrize("path", SWEEPS, ids=[p.stem for p in SWEEPS])
+def test_every_shipped_sweep_loads(path):
+    s = sw.load_sweep(path)
+    assert s.points and s.seeds >= 1 and s.description
+    ids = [p.id for p in s.points]
+    assert len(set(ids)) == len(ids), "two grid points resolve to the same config"
+    for p in s.points:
+        assert p.cfg.run.seeds == s.seeds and p.cfg.run.episodes == 125 and p.cfg.env.episode_length == 1024
+        for k, v in p.values.items():
+            if k != "base":
+                section, name = k.split(".")
+                assert getattr(getattr(p.cfg, section), name) == v
+
+
+def test_shipped_sweeps_cover_the_thesis_experiments():
+    names = {p.stem for p in SWEEPS}
+    assert {"gamma", "rho", "buffer_iddpg", "buffer_seddpg", "buffer_snddpg", "buffer_flddpg", "fed_period_steps",
+            "fed_period_episodes", "tau", "methods", "pw_beta", "rw_beta", "improvements"} <= names
+    tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")
+    assert [p.cfg.fed.tau for p in tau.points] == [0.0, 0.5, 1.0] and tau.seeds == 8
+    steps = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
+    assert {p.cfg.fed.period_unit for p in steps.points} == {"steps"}
+
+
+def test_traced_fields_share_a_group_and_static_ones_split():
+    gamma = sw.load_sweep(ROOT / "configs" / "sweeps" / "gamma.yaml")
+    assert len({sw.group_key(p.cfg) for p in gamma.points}) == 4  # one per method; gamma is traced
+    buf = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")
+    assert len({sw.group_key(p.cfg) for p in buf.points}) == 1  # capacity traced up to the allocation
+    ep = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_episodes.yaml")
+    st = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
+    assert sw.group_key(ep.points[0].cfg) != sw.group_key(st.points[0].cfg)  # period_unit is static
+
+
+def test_plan_allocates_the_largest_buffer_and_packs_to_the_budget():
+    buf = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml", overrides=["env.episode_length=16"])
+    jobs = sw.merge_jobs(buf.points)
+    (g,) = sw.plan(jobs, budget=2**40)
+    assert g.trainer.cfg.buffer_rows == 70000 and len(g.batches) == 1 and g.batch_rows == 20
+    per_row = sw.row_bytes(g.trainer) * sw.STATE_BYTES_FACTOR
+    (g2,) = sw.plan(jobs, budget=9 * per_row)  # 9 rows fit: points of 4 seeds pack 2 per batch
+    assert [len(b) for b in g2.batches] == [2, 2, 1] and g2.batch_rows == 8
+    with pytest.raises(sw.SweepError, match="memory budget"):
+        sw.plan(jobs, budget=per_row)
+
+
+def test_shared_configs_are_trained_once_with_the_most_seeds():
+    a = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")  # 8 seeds, tau 0.5 = the thesis FLDDPG
+    b = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")  # 4 seeds, 10 000 = the same
+    jobs = sw.merge_jobs(a.points + b.points)
+    assert len(jobs) == 3 + 5 - 1
+    shared = [j for j in jobs if j.id == a.points[1].id]
+    assert len(shared) == 1 and shared[0].cfg.run.seeds == 8 and a.points[1].id == b.points[1].id
+
+
+@pytest.mark.parametrize("spec, match", [
+    ({"grid": {"fed.tau": [0.5]}, "bogus": 1}, "unknown key"),
+    ({"grid": {"fed.tau": []}}, "grid.fed.tau must be a non-empty list"),
+    ({"grid": {"fed.tau": [1.5]}}, "fed.tau"),
+    ({"grid": {"fed.nope": [1]}}, "nope"),
+    ({"base": "missing.yaml", "grid": {"fed.tau": [0.5]}}, "missing.yaml"),
+    ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "ddpg.gamma"}}, "thesis.by"),
+])
+def test_bad_sweep_files_name_the_key(tmp_path, spec, match):
+    full = {"base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"), **spec}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(full))
+    with pytest.raises(sw.SweepError, match=match):
+        sw.load_sweep(path)
+
+
+def test_parse_bytes():
+    assert sw.parse_bytes("4G") == 4 * 2**30 and sw.parse_bytes("512M") == 512 * 2**20
+    assert sw.parse_bytes("1.5GB") == int(1.5 * 2**30) and sw.parse_bytes(1000) == 1000
+    with pytest.raises(sw.SweepError, match="memory budget"):
+        sw.parse_bytes("lots")
+
+
+# ----------------------------------------------------------------------------- running
+
+
+def test_a_grid_of_traced_values_compiles_once(tiny):
+    (g,) = tiny["stats"]["groups"]
+    assert g["traces"] == 1 and g["jobs"] == 6 and g["batches"] == 1 and g["batch_rows"] == 12
+
+
+def test_tables_hold_every_point_seed_episode_and_robot(tiny):
+    out, sweep = tiny["out"], tiny["sweep"]
+    res = pd.read_csv(out / "results.csv")
+    assert len(res) == 6 * 2 * 2 * 5  # points x seeds x episodes x robots
+    assert {"point", "label", "fed.tau", "ddpg.buffer_size", "seed", "episode", "robot", "reward",
+            "reached_goal"} <= set(res.columns)
+    summ = pd.read_csv(out / "summary.csv")
+    assert list(summ["point"]) == [p.id for p in sweep.points] and (summ["seeds"] == 2).all()
+    assert np.isfinite(summ[["success_last", "reward_last"]].to_numpy()).all()
+    for p in sweep.points:  # each point is a run directory `fedjax-nav evaluate` can read
+        d = out / "points" / p.id
+        assert {"config.yaml", "metrics.csv", "summary.json", "params.npz"} <= {f.name for f in d.iterdir()}
+    assert (out / "learning_curves.png").stat().st_size > 0
+    assert not (out / "batches").exists()
+
+
+def _run_metrics(folder: Path) -> pd.DataFrame:
+    return pd.read_csv(folder / "metrics.csv")
+
+
+def test_each_grid_point_equals_the_config_trained_alone(tiny, tmp_path):
+    """The point (tau 1, buffer 16) of the 12-row batch (buffers allocated at 48 rows) against
+    `train` with its own config: same numbers to float32 round-off, same discrete outcomes."""
+    p = tiny["sweep"].points[4]
+    assert p.values == {"fed.tau": 1.0, "ddpg.buffer_size": 16}
+    train(p.cfg, tmp_path / "alone", progress=False)
+    a, b = _run_metrics(tmp_path / "alone"), _run_metrics(tiny["out"] / "points" / p.id)
+    assert list(a.columns) == list(b.columns) and len(a) == len(b)
+    for k in ("goals", "reached_goal", "collisions", "fed_events", "seed", "episode", "robot"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    for k in ("reward", "critic_loss", "actor_loss", "q", "epsilon"):
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    with np.load(tmp_path / "alone" / "params.npz") as za, np.load(tiny["out"] / "points" / p.id / "params.npz") as zb:
+        assert set(za.files) == set(zb.files)
+        for k in za.files:
+            np.testing.assert_allclose(za[k], zb[k], rtol=1e-5, atol=1e-6, err_msg=k)
+
+
+def test_a_finished_sweep_trains_nothing_again(tiny):
+    sweep, out = tiny["sweep"], tiny["out"]
+    stamps = {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in sweep.points}
+    _, stats = sw.run_sweep(sweep, out, progress=False, echo=lambda s: None)
+    assert stats["skipped"] == 6 and stats["groups"] == []
+    assert stamps == {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in sweep.points}
+
+
+def test_a_killed_sweep_resumes_without_recomputing_finished_points(tiny, tmp_path, monkeypatch):
+    """Batch 1 finishes; batch 2 dies after its first episode (checkpointed). The rerun trains only
+    batch 2, from the checkpoint, and every number equals the uninterrupted sweep's."""
+    sweep = sw.load_sweep(write_sweep(tiny["folder"], "tiny-kill", set=TINY_SET + ["run.checkpoint_every=1"]))
+    assert [p.id for p in sweep.points] == [p.id for p in tiny["sweep"].points]
+    per_row = sw.row_bytes(sw.plan(sw.merge_jobs(sweep.points), 2**40)[0].trainer) * sw.STATE_BYTES_FACTOR
+    budget = 6 * per_row  # 3 points of 2 seeds per batch: 2 batches
+    out = tmp_path / "killed"
+
+    calls = []
+    real_post_init = sw.Compiled.__post_init__
+
+    def dying(self):
+        real_post_init(self)
+        fn = self.fn
+
+        def wrapped(*a):
+            calls.append(1)
+            if len(calls) == 4:  # batch 1: calls 1-2; batch 2 dies in its 2nd episode
+                raise KeyboardInterrupt
+            return fn(*a)
+
+        self.fn = wrapped
+
+    monkeypatch.setattr(sw.Compiled, "__post_init__", dying)
+    with pytest.raises(KeyboardInterrupt):
+        sw.run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
+    monkeypatch.setattr(sw.Compiled, "__post_init__", real_post_init)
+    done = [p for p in sweep.points if (out / "points" / p.id / "summary.json").exists()]
+    assert len(done) == 3 and any((out / "batches").iterdir())
+    stamps = {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in done}
+
+    _, stats = sw.run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
+    assert stats["skipped"] == 3 and stats["groups"][0]["jobs"] == 3
+    assert stamps == {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in done}
+    resumed = [json.loads((out / "points" / p.id / "summary.json").read_text())["resumed_from_episode"]
+               for p in sweep.points if p not in done]
+    assert resumed == [1, 1, 1]
+    for p in sweep.points:
+        a, b = _run_metrics(out / "points" / p.id), _run_metrics(tiny["out"] / "points" / p.id)
+        for k in ("goals", "collisions", "fed_events"):
+            np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.label} {k}")
+        for k in ("reward", "critic_loss", "q"):
+            np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, err_msg=f"{p.label} {k}")
+
+
+def test_cli_sweep_prints_the_summary_and_resumes(tiny, capsys):
+    out = tiny["out"]
+    path = tiny["folder"] / "tiny.yaml"
+    assert cli.main(["sweep", str(path), "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "fed.tau=0.5, ddpg.buffer_size=48" in text and "all points were done" in text
+    assert cli.main(["sweep", str(tiny["folder"] / "nope.yaml"), "--quiet"]) == 2
+    assert "nope.yaml" in capsys.readouterr().err
+
+
+def test_stack_hparams_keeps_equal_fields_scalar():
+    from fedjax_nav.config import load_config
+    from fedjax_nav.training.trainer import hparams_from_config
+
+    a = hparams_from_config(load_config(ROOT / "configs" / "thesis" / "flddpg.yaml"))
+    b = a.replace(tau=jax.numpy.float32(1.0))
+    hp = sw.stack_hparams([a, b, b])
+    assert hp.tau.shape == (3,) and hp.gamma.shape == () and hp.train_every.shape == ()
