@@ -103,6 +103,19 @@ def _sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reproduce(args: argparse.Namespace) -> int:
+    from fedjax_nav.reproduce import reproduce
+    from fedjax_nav.sweep import SweepError, parse_bytes
+
+    only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
+    try:
+        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
+        reproduce(args.scale, args.out, only=only, seeds=args.seeds, budget=budget, progress=not args.quiet)
+    except SweepError as e:
+        raise UserError(str(e)) from None
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fedjax-nav", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -146,8 +159,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_sweep)
 
-    p = sub.add_parser("bench", help="measure throughput (env, train, all)")
-    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "all"])
+    p = sub.add_parser("reproduce", help="every experiment of thesis chapter 4 -> figures, tables, report.md")
+    p.add_argument("--scale", choices=["ci", "thesis"], default="ci",
+                   help="ci: 10 episodes x 64 steps, 2 seeds (minutes); thesis: the thesis's scale (many hours)")
+    p.add_argument("--out", default=None, help="report folder (default runs/reproduce-<scale>); run again to resume")
+    p.add_argument("--only", default=None, metavar="A,B", help="comma-separated experiments (default: all)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per setting (default: the scale's / each file's)")
+    p.add_argument("--memory-budget", default=None, metavar="SIZE", help="memory for one batch of runs, e.g. 4G")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_reproduce)
+
+    p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")
+    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "all"])
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
     p.add_argument("--record", default=None, help="append the results to this markdown file")
     p.set_defaults(func=_bench)

@@ -38,9 +38,18 @@ def atomic_write(path: Path, write) -> None:
         raise
 
 
+def fed_bytes_per_round(trainer: Trainer) -> int:
+    """Bytes on the wire of one federated round (every client's parameters up, the aggregate
+    down; rewards too for PW/RW), 0 for methods without a federated step."""
+    if trainer.method.aggregator == "none":
+        return 0
+    return bytes_per_round(trainer.num_params(), trainer.n_nets, trainer.method.sends_rewards)
+
+
 def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
     """Flatten the metrics of episodes 0.. (leaves [seeds, episodes, ...]) into rows
-    episode x seed x robot."""
+    episode x seed x robot. `fed_bytes`: bytes of the federated steps in that episode (all
+    clients, up and down: fed_events x `fed_bytes_per_round`), repeated on each robot's row."""
     m = jax.device_get(metrics)
     S, E, N = m["reward"].shape
     ep, seed, robot = np.meshgrid(np.arange(E), np.arange(S) + cfg.run.seed, np.arange(N), indexing="ij")
@@ -55,6 +64,7 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
         "reached_goal": (tr(m["goals"]) > 0).ravel().astype(int), "collisions": tr(m["collisions"]).ravel(),
         "critic_loss": per_net(m["critic_loss"]).ravel(), "actor_loss": per_net(m["actor_loss"]).ravel(),
         "q": per_net(m["q"]).ravel(), "fed_events": per_seed(m["fed_events"]).ravel(),
+        "fed_bytes": per_seed(m["fed_events"]).ravel() * fed_bytes_per_round(trainer),
         "epsilon": per_seed(m["epsilon"]).ravel(),
     })
 
@@ -68,7 +78,7 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
     comm = communication(trainer.method, cfg.run.episodes, cfg.env.episode_length, cfg.ddpg.train_every,
                          cfg.ddpg.batch_size, cfg.fed.period_unit, cfg.fed.period)
     n_params = trainer.num_params()
-    bpr = bytes_per_round(n_params, trainer.n_nets, trainer.method.sends_rewards) if trainer.method.aggregator != "none" else 0
+    bpr = fed_bytes_per_round(trainer)
     return {
         "method": cfg.method,
         "episodes_done": E,
@@ -83,6 +93,7 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
         "communication": comm,
         "params_per_agent": n_params,
         "bytes_per_fed_round": bpr,
+        "fed_bytes_total": (int(fed_events.iloc[0]) if len(fed_events) else 0) * bpr,  # per seed
     }
 
 
@@ -119,35 +130,42 @@ def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> 
 
 
 def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | None = None,
-          resume: bool = False) -> dict:
+          resume: bool = False, mesh=None) -> dict:
     """Train `cfg.run.seeds` seeds in one program; write the run directory; return the summary.
 
     Checkpoints every `run.checkpoint_every` episodes and at the end; `resume=True` continues
     from the latest one. Ctrl-C finishes the current chunk, saves and raises `Interrupted`.
+    `mesh` (`fedjax_nav.parallel.make_mesh`): spread the clients or seeds over its devices, in
+    this process or, after `parallel.initialize_distributed`, over every process (each process
+    runs this same call; only process 0 writes files).
     """
     import signal
 
     from tqdm.auto import tqdm
 
+    from fedjax_nav import parallel
     from fedjax_nav.checkpoint import Checkpointer
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    writer = parallel.is_writer()
+    write = atomic_write if writer else (lambda path, fn: None)
     trainer = Trainer(cfg)
     hp = hparams_from_config(cfg) if hp is None else hp
     seeds = jnp.arange(cfg.run.seeds) + cfg.run.seed
-    states = trainer.init_seeds(seeds, hp)
+    states = trainer.init_seeds(seeds, hp, mesh=mesh)
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints)
     K, metrics, start = cfg.run.chunk_episodes, None, 0
     if resume:
-        states, metrics = ckpt.restore(states)
+        restored, metrics = ckpt.restore(parallel.checkpoint_template(states, mesh))
+        states = parallel.from_checkpoint(restored, states, mesh)
         start = int(ckpt.latest())
         all_df = metrics_frame(metrics, cfg, trainer)  # also when the run had already finished
-        atomic_write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
+        write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
     elif ckpt.latest() is not None:
         raise FileExistsError(f"{out}: already holds checkpoints; resume it with --resume {out} or pick another --out")
-    atomic_write(out / "config.yaml", lambda p: save_config(cfg, p))
-    chunk = trainer.compiled_chunk()
+    write(out / "config.yaml", lambda p: save_config(cfg, p))
+    chunk = trainer.compiled_chunk(mesh=mesh, states=states, hp=hp)
 
     interrupted = []
     old_handler = signal.getsignal(signal.SIGINT)
@@ -161,7 +179,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     signal.signal(signal.SIGINT, on_sigint)
     t0, t_compile, ckpt_s = time.time(), None, 0.0
     bar = tqdm(total=cfg.run.episodes, initial=start, desc=f"{cfg.method} x{cfg.run.seeds} seeds", unit="ep",
-               disable=not progress)
+               disable=not (progress and writer))
     try:
         for first in range(start, cfg.run.episodes, K):
             tc = time.time()
@@ -172,7 +190,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
             check_finite(m, first, cfg, trainer)
             metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
             all_df = metrics_frame(metrics, cfg, trainer)
-            atomic_write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
+            write(out / "metrics.csv", lambda p: all_df.to_csv(p, index=False))
             done = first + K
             last = all_df[all_df.episode == done - 1]
             bar.set_postfix(success=f"{last.reached_goal.mean():.2f}", reward=f"{last.reward.mean():.3f}")
@@ -180,7 +198,7 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
             every = cfg.run.checkpoint_every
             if (every and done % every == 0) or done == cfg.run.episodes or interrupted:
                 tk = time.time()
-                ckpt.save(done, jax.tree.map(jnp.copy, states), metrics)  # copy: states get donated next
+                ckpt.save(done, parallel.checkpoint_view(states, mesh), metrics)  # a copy: states get donated next
                 ckpt_s += time.time() - tk
             if interrupted and done < cfg.run.episodes:
                 ckpt.wait()
@@ -196,8 +214,14 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     summary = summarize(all_df, cfg, trainer)
     summary.update({"wall_s": wall, "first_chunk_s_incl_compile": t_compile, "checkpoint_s": ckpt_s,
                     "resumed_from_episode": start, "jax_backend": jax.default_backend()})
+    if mesh is not None:
+        summary.update({"devices": int(mesh.size), "shard": ",".join(mesh.axis_names),
+                        "processes": jax.process_count()})
+    final = states if mesh is None else parallel.checkpoint_view(states, mesh)  # every process joins the gather
+    if not writer:
+        return summary
     atomic_write(out / "summary.json", lambda p: Path(p).write_text(json.dumps(summary, indent=1)))
-    save_params(out / "params.npz", states)
+    save_params(out / "params.npz", final)
     from fedjax_nav.analysis.plots import learning_curves
 
     learning_curves(all_df, out / "learning_curves.png", title=f"{cfg.method}, {cfg.run.seeds} seeds")

@@ -115,10 +115,17 @@ class Trainer:
             reward_sum=jnp.zeros(self.num_robots), reward_steps=jnp.float32(0), key=k_run,
         )
 
-    def init_seeds(self, seeds: jax.Array, hp: HParams) -> TrainState:
-        """Stacked states for integer seeds i32[S] (hp leaves scalar or [S])."""
+    def init_seeds(self, seeds: jax.Array, hp: HParams, mesh=None) -> TrainState:
+        """Stacked states for integer seeds i32[S] (hp leaves scalar or [S]); with a `mesh`
+        (`fedjax_nav.parallel`), created already sharded over it."""
         init = jax.vmap(lambda s, h: self.init(jax.random.key(s), h), in_axes=(0, hp_axes(hp)))
-        return jax.jit(init)(seeds, hp)  # jit: op-by-op init of the buffers took ~20 s under load
+        if mesh is None:
+            return jax.jit(init)(seeds, hp)  # jit: op-by-op init of the buffers took ~20 s under load
+        from fedjax_nav import parallel
+
+        self.check_mesh(mesh, len(seeds))
+        shardings = parallel.state_shardings(jax.eval_shape(init, seeds, hp), mesh)
+        return jax.jit(init, out_shardings=shardings)(np.asarray(seeds), hp)
 
     # ------------------------------------------------------------------ pieces
 
@@ -246,10 +253,32 @@ class Trainer:
 
         return jax.vmap(one_seed, in_axes=(0, hp_axes(hp)))(states, hp)
 
-    def compiled_chunk(self, num_episodes: int | None = None):
-        """jit(chunk) with the states donated (the replay buffers are updated in place)."""
+    def compiled_chunk(self, num_episodes: int | None = None, mesh=None, states=None, hp: HParams | None = None):
+        """jit(chunk) with the states donated (the replay buffers are updated in place).
+
+        With a `mesh` (see `fedjax_nav.parallel`), `states` and `hp` (templates: arrays or
+        ShapeDtypeStructs) fix the in/out shardings: the states keep their placement, the
+        metrics come back replicated (every process can read them)."""
         n = num_episodes or self.cfg.run.chunk_episodes
-        return jax.jit(partial(self.chunk, num_episodes=n), donate_argnums=0)
+        fn = partial(self.chunk, num_episodes=n)
+        if mesh is None:
+            return jax.jit(fn, donate_argnums=0)
+        from fedjax_nav import parallel
+
+        if states is None or hp is None:
+            raise ValueError("compiled_chunk(mesh=...) needs the states and hp templates")
+        self.check_mesh(mesh, jax.tree.leaves(states.epsilon)[0].shape[0])
+        st = parallel.state_shardings(states, mesh)
+        rep = parallel.replicated(mesh)
+        return jax.jit(fn, donate_argnums=0, in_shardings=(st, parallel.seed_shardings(hp, mesh), rep),
+                       out_shardings=(st, rep))
+
+    def check_mesh(self, mesh, num_seeds: int) -> None:
+        """Raise `parallel.ShardingError` if this run cannot be placed on `mesh`."""
+        from fedjax_nav import parallel
+
+        parallel.check_placement(mesh, num_seeds, self.num_robots, self.method.shared_network,
+                                 self.method.shared_buffer)
 
     def num_params(self) -> int:
         """Parameters of one agent (actor + critic), what one client sends per federated round."""

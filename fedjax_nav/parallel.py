@@ -1,0 +1,187 @@
+"""Placing a run on several devices and hosts: meshes, the sharding of the stacked TrainState,
+and `jax.distributed` start-up.
+
+The trainer's state is stacked `[seeds, clients, ...]` (clients = robots: agents, buffers,
+env states, observations and reward sums carry the client axis; epsilon, PRNG keys, reward step
+counts and GS's global model do not). A mesh with an axis named `"clients"` spreads the client
+axis over its devices, one named `"seeds"` the seed axis (a 2-D mesh may name both). The
+trainer's program is unchanged: `jax.jit` with these shardings lets XLA's SPMD partitioner run
+each client's env steps and DDPG updates on the device that holds it, and turn the federated
+step's mean over the client axis into the cross-device collective.
+
+Which leaves carry the client axis is decided by field name (`CLIENT_FIELDS`), not by shape.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+AXES = ("clients", "seeds")
+# TrainState fields whose leaves are [seeds, clients, ...]; every other field is [seeds, ...].
+CLIENT_FIELDS = ("agents", "buffers", "env_state", "obs", "reward_sum")
+
+
+class ShardingError(ValueError):
+    """A run cannot be placed on the mesh; the message names the numbers involved."""
+
+
+def make_mesh(num_devices: int | None = None, axis: str = "clients", devices=None) -> Mesh:
+    """A 1-D mesh over the first `num_devices` of `devices` (default: every device of every
+    process, `jax.devices()`), with an Auto axis named `axis` ("clients" or "seeds")."""
+    if axis not in AXES:
+        raise ShardingError(f"mesh axis {axis!r}: allowed {', '.join(AXES)}")
+    devices = list(jax.devices() if devices is None else devices)
+    n = len(devices) if num_devices is None else num_devices
+    if not 1 <= n <= len(devices):
+        raise ShardingError(f"{n} devices asked for, {len(devices)} available "
+                            f"({jax.default_backend()}; on CPU set XLA_FLAGS=--xla_force_host_platform_device_count={n} "
+                            "before jax starts, e.g. `fedjax-nav train --devices N`)")
+    return Mesh(np.array(devices[:n]), (axis,), axis_types=(jax.sharding.AxisType.Auto,))
+
+
+def _axis(mesh: Mesh | None, name: str) -> str | None:
+    return name if mesh is not None and name in mesh.axis_names else None
+
+
+def check_placement(mesh: Mesh, num_seeds: int, num_clients: int, shared_network: bool, shared_buffer: bool) -> None:
+    """Raise ShardingError if the sharded axes do not divide evenly or cannot be split."""
+    for name in mesh.axis_names:
+        if name not in AXES:
+            raise ShardingError(f"mesh axis {name!r}: allowed {', '.join(AXES)}")
+    if _axis(mesh, "clients"):
+        if shared_network or shared_buffer:
+            what = "one network" if shared_network else "one replay buffer"
+            raise ShardingError(f"the method shares {what} between every robot: its clients cannot be split over "
+                                "devices; shard the seeds instead (--shard seeds)")
+        n = mesh.shape["clients"]
+        if num_clients % n:
+            raise ShardingError(f"{num_clients} clients (robots) do not divide over {n} devices; use a device count "
+                                f"that divides {num_clients}, or --shard seeds")
+    if _axis(mesh, "seeds"):
+        n = mesh.shape["seeds"]
+        if num_seeds % n:
+            raise ShardingError(f"{num_seeds} seeds do not divide over {n} devices; use a multiple of {n} seeds "
+                                "(--seeds), or fewer devices")
+
+
+def state_shardings(template, mesh: Mesh):
+    """NamedShardings shaped like a stacked TrainState `template` (arrays or ShapeDtypeStructs)."""
+    s, c = _axis(mesh, "seeds"), _axis(mesh, "clients")
+    out = {}
+    for f in dataclasses.fields(template):
+        spec = P(s, c) if f.name in CLIENT_FIELDS and c else P(s)
+        out[f.name] = jax.tree.map(lambda _, spec=spec: NamedSharding(mesh, spec), getattr(template, f.name))
+    return template.replace(**out)
+
+
+def seed_shardings(tree, mesh: Mesh):
+    """Shardings for a tree whose leaves are scalars or [seeds, ...] (HParams, metrics)."""
+    s = _axis(mesh, "seeds")
+    return jax.tree.map(lambda x: NamedSharding(mesh, P(s) if np.ndim(x) else P()), tree)
+
+
+def replicated(mesh: Mesh) -> NamedSharding:
+    return NamedSharding(mesh, P())
+
+
+def put(tree, shardings):
+    """Place host or single-device values onto (possibly multi-process) shardings. Every process
+    passes the same full values; each keeps only the shards its devices hold."""
+    def one(x, sh):
+        if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            data = one(jax.random.key_data(x), sh)
+            return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
+        x = np.asarray(jax.device_get(x))
+        return jax.make_array_from_callback(x.shape, sh, lambda idx: x[idx])
+
+    return jax.tree.map(one, tree, shardings)
+
+
+# ----------------------------------------------------------------------------- checkpoints
+# One process: orbax writes the (sharded) arrays as they are. Several processes: the state is
+# first gathered (replicated on every device), so that orbax writes every array's data from
+# process 0 (replica 0) and every process can checksum and restore it whole.
+
+
+def _multi(mesh: Mesh | None) -> bool:
+    return mesh is not None and jax.process_count() > 1
+
+
+def checkpoint_view(states, mesh: Mesh | None):
+    """A copy of `states` to save (the originals are donated to the next chunk): same
+    placement in one process; replicated over the mesh when several processes hold it (a
+    collective: every process must call it)."""
+    if not _multi(mesh):
+        return jax.tree.map(lambda x: x.copy(), states)
+    return jax.jit(lambda s: jax.tree.map(lambda x: x.copy(), s), out_shardings=replicated(mesh))(states)
+
+
+def checkpoint_template(states, mesh: Mesh | None):
+    """What `Checkpointer.restore` restores into: `states` itself, or with several processes
+    replicated arrays like those `checkpoint_view` saved (real arrays, not abstract ones:
+    orbax restores typed PRNG keys from a template key array)."""
+    return states if not _multi(mesh) else checkpoint_view(states, mesh)
+
+
+def from_checkpoint(restored, states, mesh: Mesh | None):
+    """Restored states placed like `states` (the run's own sharding)."""
+    if not _multi(mesh):
+        return restored
+    return jax.device_put(restored, jax.tree.map(lambda x: x.sharding, states))
+
+
+# ----------------------------------------------------------------------------- several processes
+
+ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+
+
+@dataclasses.dataclass(frozen=True)
+class DistributedConfig:
+    coordinator: str  # host:port of process 0's coordination service
+    num_processes: int
+    process_id: int
+
+
+def distributed_config(coordinator: str | None = None, num_processes: int | None = None,
+                       process_id: int | None = None, environ=None) -> DistributedConfig:
+    """Flags, else the environment variables JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and
+    JAX_PROCESS_ID; raises ShardingError naming what is missing or out of range."""
+    env = os.environ if environ is None else environ
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    missing = [name for name, v in [("--coordinator / JAX_COORDINATOR_ADDRESS", coordinator),
+                                    ("--num-processes / JAX_NUM_PROCESSES", num_processes if num_processes is not None
+                                     else env.get("JAX_NUM_PROCESSES")),
+                                    ("--process-id / JAX_PROCESS_ID", process_id if process_id is not None
+                                     else env.get("JAX_PROCESS_ID"))] if v in (None, "")]
+    if missing:
+        raise ShardingError(f"--distributed needs {', '.join(missing)}")
+    try:
+        n = int(num_processes if num_processes is not None else env["JAX_NUM_PROCESSES"])
+        i = int(process_id if process_id is not None else env["JAX_PROCESS_ID"])
+    except ValueError as e:
+        raise ShardingError(f"process count and id must be integers ({e})") from None
+    if ":" not in coordinator:
+        raise ShardingError(f"coordinator {coordinator!r}: expected HOST:PORT")
+    if n < 1 or not 0 <= i < n:
+        raise ShardingError(f"process id {i} with {n} processes: allowed 0 <= id < processes, processes >= 1")
+    return DistributedConfig(coordinator, n, i)
+
+
+def initialize_distributed(coordinator: str | None = None, num_processes: int | None = None,
+                           process_id: int | None = None) -> DistributedConfig:
+    """`jax.distributed.initialize` from flags or the usual environment variables; CPU
+    collectives through gloo. Call before any other jax use. Returns what was used."""
+    dc = distributed_config(coordinator, num_processes, process_id)
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")  # the default in jax 0.10; explicit
+    jax.distributed.initialize(dc.coordinator, dc.num_processes, dc.process_id)
+    return dc
+
+
+def is_writer() -> bool:
+    """True in the one process that writes results and checkpoints (process 0)."""
+    return jax.process_index() == 0
