@@ -48,7 +48,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from fedjax_nav.config import Config, ConfigError, apply_overrides, from_dict, read_yaml, save_config, to_dict
+from fedjax_nav.config import (Config, ConfigError, DDPGConfig, apply_overrides, from_dict, read_yaml, save_config,
+                               to_dict)
 from fedjax_nav.training.run import atomic_write, metrics_frame, save_params, summarize
 from fedjax_nav.training.trainer import HParams, Trainer, hparams_from_config
 
@@ -106,6 +107,13 @@ def _flat(cfg: Config) -> dict:
     return out
 
 
+def _get(cfg: Config, dotted: str):
+    if dotted == "method":
+        return cfg.method
+    section, name = dotted.split(".")
+    return getattr(getattr(cfg, section), name)
+
+
 def point_id(cfg: Config) -> str:
     """12 hex digits of the config's hash, without bookkeeping fields (seeds count included)."""
     flat = {k: v for k, v in _flat(cfg).items() if k not in BOOKKEEPING}
@@ -136,9 +144,11 @@ def _as_overrides(x: Any, where: str) -> list[str]:
     raise SweepError(f"{where}: must be a mapping key: value or a list of 'key=value' strings")
 
 
-def load_sweep(path: str | Path, overrides: list[str] | tuple = (), seeds: int | None = None) -> Sweep:
+def load_sweep(path: str | Path, overrides: list[str] | tuple = (), seeds: int | None = None,
+               buffer_scale: float = 1.0) -> Sweep:
     """Read and validate a sweep file; `overrides` apply to every point after the grid values,
-    `seeds` replaces the file's seed count."""
+    `seeds` replaces the file's seed count; `buffer_scale` multiplies every point's buffer size
+    (at least the batch size; `reproduce --scale ci` shrinks runs so that buffers still wrap)."""
     path = Path(path)
     try:
         spec = read_yaml(path)
@@ -183,10 +193,16 @@ def load_sweep(path: str | Path, overrides: list[str] | tuple = (), seeds: int |
         src = f"{path} (point {point_label(values, Config())})"
         try:
             data = apply_overrides(data, common + grid_over + list(overrides) + [f"run.seeds={n_seeds}"], src)
+            if buffer_scale != 1.0:
+                dd = data.setdefault("ddpg", {})
+                size = dd.get("buffer_size", DDPGConfig().buffer_size)
+                dd["buffer_size"] = max(int(dd.get("batch_size", DDPGConfig().batch_size)), round(size * buffer_scale))
             cfg = from_dict(data, src)
         except ConfigError as e:
             raise SweepError(str(e)) from None
-        points.append(Point(values, cfg))
+        # the values as resolved (a buffer size after buffer_scale, a float after YAML's int)
+        resolved = {k: (v if k == "base" else _get(cfg, k)) for k, v in values.items()}
+        points.append(Point(resolved, cfg))
     thesis = spec.get("thesis") or {}
     if thesis and thesis.get("by", keys[0] if keys else "method") not in (*keys, "method"):
         raise SweepError(f"{path}: thesis.by must be one of the grid keys {list(keys)} or 'method'")
