@@ -6,6 +6,8 @@ train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per ro
        compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of the DDPG updates against
        the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of the
        whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput).
+sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped program (the
+       per-run cost of `fedjax-nav sweep`).
 
 Results print as a table; `--record FILE` appends them, with machine, versions and command, to a
 markdown file (docs/benchmarks.md).
@@ -123,6 +125,43 @@ def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, ove
     return rows
 
 
+def bench_sweep(points: int = 4, episodes: int = 2, overrides=()) -> list[dict]:
+    """A grid of `points` tau values x 1 seed of the thesis FLDDPG preset: the runs one by one (one
+    compiled program, batch 1, tau a traced scalar) against one vmapped batch of `points` rows (what
+    `fedjax-nav sweep` runs). Both timed after compilation; the ratio is per run."""
+    from fedjax_nav.config import load_config
+    from fedjax_nav.sweep import stack_hparams
+    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+
+    cfg = load_config("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
+                      [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides])
+    tr = Trainer(cfg)
+    base = hparams_from_config(cfg)
+    taus = np.linspace(0.0, 1.0, points).astype(np.float32)
+    hps = [base.replace(tau=jnp.float32(t)) for t in taus]
+    f = tr.compiled_chunk()
+
+    def run(seeds, hp):
+        states = tr.init_seeds(jnp.asarray(seeds, jnp.int32), hp)
+        jax.block_until_ready(states)
+        t = time.perf_counter()
+        _, m = f(states, hp, jnp.int32(0))
+        jax.block_until_ready(m)
+        return time.perf_counter() - t
+
+    grid_hp = stack_hparams(hps)
+    t0 = time.perf_counter()
+    run([0], hps[0])  # compile batch 1
+    run([0] * points, grid_hp)  # compile batch `points`
+    compile_s = time.perf_counter() - t0
+    one = sum(run([0], h) for h in hps)
+    grid = run([0] * points, grid_hp)
+    T, N = cfg.env.episode_length, tr.num_robots
+    return [{"bench": "sweep", "points": points, "episodes": episodes, "robots": N, "steps": T,
+             "one_by_one_s": one, "sweep_s": grid, "per_run_one_by_one_s": one / points,
+             "per_run_sweep_s": grid / points, "sweep_speedup": one / grid, "compile_s": compile_s}]
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -138,6 +177,13 @@ def format_rows(rows: list[dict]) -> str:
     for r in rows:
         if r["bench"] == "env":
             lines.append(f"| env | batch {r['batch']}, {r['devices']} device(s) | {r['agent_steps_per_s']:,.0f} agent-steps/s |")
+        elif r["bench"] == "sweep":
+            lines.append(
+                f"| sweep | {r['points']} tau values x 1 seed, {r['episodes']} x {r['steps']} steps, {r['robots']} robots | "
+                f"one by one {r['one_by_one_s']:.1f} s ({r['per_run_one_by_one_s']:.1f} s per run); one vmapped "
+                f"program {r['sweep_s']:.1f} s ({r['per_run_sweep_s']:.1f} s per run): {r['sweep_speedup']:.2f}x; "
+                f"compiling both {r['compile_s']:.0f} s |"
+            )
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
@@ -163,6 +209,9 @@ def main(args) -> int:
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
         rows += bench_train(seeds=(1,) if quick else (1, 8), ceiling=ceiling, overrides=over)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
+    if what in ("sweep", "all"):
+        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
+        rows += bench_sweep(points=2 if quick else 4, episodes=1 if quick else 2, overrides=over)
     table = format_rows(rows)
     print(table)
     record = getattr(args, "record", None)

@@ -16,3 +16,12 @@ def test_update_flops_matches_hand_count():
     fc = 2 * (30 * 64 + 2 * 64 * 64 + 64 * 1)
     assert update_flops(28, 64, 3, 512) == 512 * (4 * fa + 6 * fc)
     assert 95e6 < update_flops(28, 64, 3, 512) < 110e6  # "about 98 MFLOP per agent" (issue 3)
+
+
+def test_sweep_bench_times_one_by_one_and_batched():
+    rows = bench.bench_sweep(points=2, episodes=1, overrides=("env.episode_length=16", "ddpg.batch_size=8",
+                                                               "ddpg.hidden=16", "ddpg.buffer_size=64"))
+    (r,) = rows
+    assert r["points"] == 2 and r["one_by_one_s"] > 0 and r["sweep_s"] > 0
+    assert abs(r["per_run_sweep_s"] * 2 - r["sweep_s"]) < 1e-9 and r["sweep_speedup"] > 0
+    assert "one vmapped program" in bench.format_rows(rows)
