@@ -26,16 +26,25 @@ class CheckpointError(ValueError):
 
 
 class Checkpointer:
-    def __init__(self, run_dir: str | Path, keep: int = 3, async_save: bool = True):
+    def __init__(self, run_dir: str | Path, keep: int = 3, async_save: bool = True, process: int | None = None):
+        """`process`: in a run of several jax processes, the index of this one; its manager then
+        works alone (no barriers with the others): process 0 saves host (numpy) states, every
+        process may restore. None: the usual single-process manager."""
         # orbax logs routine events (e.g. removing an unfinished save after a kill) as warnings.
         absl_logging.set_verbosity(absl_logging.ERROR)
         self.dir = Path(run_dir).absolute() / "checkpoints"
+        alone = {}
+        if process is not None:
+            if process == 0:
+                self.dir.mkdir(parents=True, exist_ok=True)  # orbax cannot create it with active_processes
+            alone = {"create": False, "multiprocessing_options": ocp.options.MultiprocessingOptions(
+                primary_host=process, active_processes={process})}
         self.manager = ocp.CheckpointManager(
             self.dir,
             # not "metrics": orbax reserves that item name for its JSON best-checkpoint metrics
             item_names=("state", "episode_history"),
             options=ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=async_save,
-                                                 create=True),
+                                                 **({"create": True} | alone)),
         )
 
     def save(self, episodes_done: int, states, metrics: dict) -> None:

@@ -18,6 +18,18 @@ def _train(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from fedjax_nav import parallel
+
+    if args.distributed:  # before anything starts jax's backends
+        if not (args.out or args.resume):
+            raise UserError("--distributed needs --out DIR (or --resume DIR): every process must use the same run directory")
+        try:
+            parallel.initialize_distributed(args.coordinator, args.num_processes, args.process_id)
+        except parallel.ShardingError as e:
+            raise UserError(str(e)) from None
+
+    import jax
+
     from fedjax_nav.config import diff, load_config
     from fedjax_nav.training.run import train
 
@@ -41,16 +53,21 @@ def _train(args: argparse.Namespace) -> int:
         cfg = load_config(args.config, overrides)
         out = args.out or f"runs/{cfg.method}-{time.strftime('%Y%m%d-%H%M%S')}"
     verb = "resuming" if args.resume else "training"
-    print(f"{verb} {cfg.method} on {', '.join(cfg.env.worlds)}: {cfg.run.episodes} episodes x "
-          f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s) -> {out}")
+    say = print if jax.process_index() == 0 else (lambda *a, **k: None)
     try:
-        s = train(cfg, out, progress=not args.quiet, resume=bool(args.resume))
-    except FileExistsError as e:
+        # one device and one process: no mesh, the program of a plain run
+        mesh = parallel.make_mesh(args.devices, args.shard) if args.distributed or (args.devices or 1) > 1 else None
+        where = "" if mesh is None else (f" on {mesh.size} devices ({args.shard} sharded"
+                                         f"{f', {jax.process_count()} processes' if args.distributed else ''})")
+        say(f"{verb} {cfg.method} on {', '.join(cfg.env.worlds)}: {cfg.run.episodes} episodes x "
+            f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s){where} -> {out}")
+        s = train(cfg, out, progress=not args.quiet, resume=bool(args.resume), mesh=mesh)
+    except (FileExistsError, parallel.ShardingError) as e:
         raise UserError(str(e)) from None
-    print(f"success over the last {s['last_episodes']} episodes: {s['success_last']:.3f} "
-          f"+- {s['success_last_std']:.3f} (std over {s['seeds']} seeds); mean reward per step "
-          f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s")
-    print(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
+    say(f"success over the last {s['last_episodes']} episodes: {s['success_last']:.3f} "
+        f"+- {s['success_last_std']:.3f} (std over {s['seeds']} seeds); mean reward per step "
+        f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s")
+    say(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
     return 0
 
 
@@ -128,6 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
     p.add_argument("--resume", metavar="RUN_DIR", default=None, help="continue a run from its latest checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--devices", type=int, default=None, metavar="N",
+                   help="spread the run over N devices (on CPU: N forced host devices); default one, or every "
+                        "device of every process with --distributed")
+    p.add_argument("--shard", choices=["clients", "seeds"], default="clients",
+                   help="the axis spread over the devices (default clients: robots; SEDDPG/SNDDPG: seeds)")
+    p.add_argument("--distributed", action="store_true",
+                   help="one of several processes (jax.distributed); start one per host with the same flags")
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="process 0's address (default $JAX_COORDINATOR_ADDRESS)")
+    p.add_argument("--num-processes", type=int, default=None, help="default $JAX_NUM_PROCESSES")
+    p.add_argument("--process-id", type=int, default=None, help="default $JAX_PROCESS_ID")
     p.set_defaults(func=_train)
 
     p = sub.add_parser("evaluate", help="evaluate trained agents: success, time, efficiency, trajectories")
@@ -184,6 +212,13 @@ def main(argv: list[str] | None = None) -> int:
         # measures the batch split over one device per core (must be set before jax starts).
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
                                    f" --xla_force_host_platform_device_count={os.cpu_count() or 1}").strip()
+    if args.command == "train" and (args.devices or 1) > 1 and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        # On CPU `--devices N` means N host devices, which must be set before jax starts (GPUs
+        # ignore it); with --distributed each process holds its share of them.
+        env_n = os.environ.get("JAX_NUM_PROCESSES", "1")
+        nproc = (args.num_processes or (int(env_n) if env_n.isdigit() else 1)) if args.distributed else 1
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                                   f" --xla_force_host_platform_device_count={max(1, args.devices // nproc)}").strip()
     from fedjax_nav.checkpoint import CheckpointError
     from fedjax_nav.config import ConfigError
     from fedjax_nav.training.run import DivergenceError, Interrupted

@@ -92,47 +92,63 @@ def replicated(mesh: Mesh) -> NamedSharding:
 def put(tree, shardings):
     """Place host or single-device values onto (possibly multi-process) shardings. Every process
     passes the same full values; each keeps only the shards its devices hold."""
-    def one(x, sh):
-        if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-            data = one(jax.random.key_data(x), sh)
-            return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
-        x = np.asarray(jax.device_get(x))
-        return jax.make_array_from_callback(x.shape, sh, lambda idx: x[idx])
-
-    return jax.tree.map(one, tree, shardings)
+    return jax.tree.map(_put_one, tree, shardings)
 
 
 # ----------------------------------------------------------------------------- checkpoints
-# One process: orbax writes the (sharded) arrays as they are. Several processes: the state is
-# first gathered (replicated on every device), so that orbax writes every array's data from
-# process 0 (replica 0) and every process can checksum and restore it whole.
+# One process: orbax writes the (sharded) arrays as they are, unchanged from a run without a
+# mesh. Several processes: every process joins one gather of the state to host memory, then
+# process 0 alone saves it (numpy arrays, PRNG keys as their raw key data) with a checkpoint
+# manager that works without the others; every process can restore it into its own shards.
 
 
 def _multi(mesh: Mesh | None) -> bool:
     return mesh is not None and jax.process_count() > 1
 
 
+def _is_key(x) -> bool:
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def checkpoint_process(mesh: Mesh | None) -> int | None:
+    """`Checkpointer(process=...)`: this process's index when several hold the run, else None."""
+    return jax.process_index() if _multi(mesh) else None
+
+
 def checkpoint_view(states, mesh: Mesh | None):
-    """A copy of `states` to save (the originals are donated to the next chunk): same
-    placement in one process; replicated over the mesh when several processes hold it (a
-    collective: every process must call it)."""
+    """A copy of `states` to save or write out (the originals are donated to the next chunk):
+    the same arrays in one process; with several, the whole state in host memory (numpy, keys
+    as key data), in every process. The latter is a collective: every process must call it."""
     if not _multi(mesh):
         return jax.tree.map(lambda x: x.copy(), states)
-    return jax.jit(lambda s: jax.tree.map(lambda x: x.copy(), s), out_shardings=replicated(mesh))(states)
+    unkey = lambda x: jax.random.key_data(x) if _is_key(x) else x  # noqa: E731
+    gathered = jax.jit(lambda s: jax.tree.map(unkey, s), out_shardings=replicated(mesh))(states)
+    return jax.tree.map(np.asarray, gathered)
 
 
 def checkpoint_template(states, mesh: Mesh | None):
     """What `Checkpointer.restore` restores into: `states` itself, or with several processes
-    replicated arrays like those `checkpoint_view` saved (real arrays, not abstract ones:
-    orbax restores typed PRNG keys from a template key array)."""
-    return states if not _multi(mesh) else checkpoint_view(states, mesh)
+    zeros shaped like `checkpoint_view` (built locally: no collective)."""
+    if not _multi(mesh):
+        return states
+    unkey = lambda x: jax.eval_shape(jax.random.key_data, x) if _is_key(x) else x  # noqa: E731
+    return jax.tree.map(lambda x: np.zeros(unkey(x).shape, unkey(x).dtype), states)
 
 
 def from_checkpoint(restored, states, mesh: Mesh | None):
-    """Restored states placed like `states` (the run's own sharding)."""
+    """Restored states placed like `states` (the run's own shardings and PRNG key type)."""
     if not _multi(mesh):
         return restored
-    return jax.device_put(restored, jax.tree.map(lambda x: x.sharding, states))
+    rekey = lambda r, x: jax.random.wrap_key_data(r, impl=jax.random.key_impl(x)) if _is_key(x) else r  # noqa: E731
+    return jax.tree.map(lambda r, x: _put_one(rekey(r, x), x.sharding), restored, states)
+
+
+def _put_one(x, sharding):
+    if isinstance(x, jax.Array) and _is_key(x):
+        data = _put_one(jax.random.key_data(x), sharding)
+        return jax.random.wrap_key_data(data, impl=jax.random.key_impl(x))
+    x = np.asarray(jax.device_get(x))
+    return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
 
 
 # ----------------------------------------------------------------------------- several processes

@@ -147,14 +147,15 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
     from fedjax_nav.checkpoint import Checkpointer
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     writer = parallel.is_writer()
     write = atomic_write if writer else (lambda path, fn: None)
+    if writer:
+        out.mkdir(parents=True, exist_ok=True)
     trainer = Trainer(cfg)
     hp = hparams_from_config(cfg) if hp is None else hp
     seeds = jnp.arange(cfg.run.seeds) + cfg.run.seed
     states = trainer.init_seeds(seeds, hp, mesh=mesh)
-    ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints)
+    ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints, process=parallel.checkpoint_process(mesh))
     K, metrics, start = cfg.run.chunk_episodes, None, 0
     if resume:
         restored, metrics = ckpt.restore(parallel.checkpoint_template(states, mesh))
@@ -198,7 +199,9 @@ def train(cfg: Config, out: str | Path, progress: bool = True, hp: HParams | Non
             every = cfg.run.checkpoint_every
             if (every and done % every == 0) or done == cfg.run.episodes or interrupted:
                 tk = time.time()
-                ckpt.save(done, parallel.checkpoint_view(states, mesh), metrics)  # a copy: states get donated next
+                view = parallel.checkpoint_view(states, mesh)  # a copy: states get donated next
+                if writer:
+                    ckpt.save(done, view, metrics)
                 ckpt_s += time.time() - tk
             if interrupted and done < cfg.run.episodes:
                 ckpt.wait()
