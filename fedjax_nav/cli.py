@@ -110,7 +110,7 @@ def _sweep(args: argparse.Namespace) -> int:
     except SweepError as e:
         raise UserError(str(e)) from None
     out = Path(args.out or f"runs/sweeps/{sweep.name}")
-    summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet)
+    summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet, devices=args.devices)
     if len(summ):
         cols = ["label", "seeds", "success_last", "success_last_std", "reward_last", "reward_last_std"]
         print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
@@ -127,7 +127,8 @@ def _reproduce(args: argparse.Namespace) -> int:
     only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
     try:
         budget = parse_bytes(args.memory_budget) if args.memory_budget else None
-        reproduce(args.scale, args.out, only=only, seeds=args.seeds, budget=budget, progress=not args.quiet)
+        reproduce(args.scale, args.out, only=only, seeds=args.seeds, budget=budget, progress=not args.quiet,
+                  devices=args.devices)
     except SweepError as e:
         raise UserError(str(e)) from None
     return 0
@@ -184,6 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>); run again to resume")
     p.add_argument("--memory-budget", default=None, metavar="SIZE",
                    help="memory for one batch of runs, e.g. 4G (default: half of the available memory)")
+    p.add_argument("--devices", type=int, default=None, metavar="N",
+                   help="spread each batch of runs over N devices (default: all; on CPU one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_sweep)
 
@@ -194,6 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", default=None, metavar="A,B", help="comma-separated experiments (default: all)")
     p.add_argument("--seeds", type=int, default=None, help="seeds per setting (default: the scale's / each file's)")
     p.add_argument("--memory-budget", default=None, metavar="SIZE", help="memory for one batch of runs, e.g. 4G")
+    p.add_argument("--devices", type=int, default=None, metavar="N",
+                   help="spread each batch of runs over N devices (default: all; on CPU one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_reproduce)
 
@@ -219,6 +224,12 @@ def main(argv: list[str] | None = None) -> int:
         nproc = (args.num_processes or (int(env_n) if env_n.isdigit() else 1)) if args.distributed else 1
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
                                    f" --xla_force_host_platform_device_count={max(1, args.devices // nproc)}").strip()
+    if args.command in ("sweep", "reproduce") and "xla_force_host_platform_device_count" not in os.environ.get(
+            "XLA_FLAGS", ""):
+        # The fast path by default: a batch of runs spread over one host device per core keeps
+        # both cores busy (one XLA CPU device uses ~1-1.5 of them on these programs).
+        n = args.devices or os.cpu_count() or 1
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}").strip()
     from fedjax_nav.checkpoint import CheckpointError
     from fedjax_nav.config import ConfigError
     from fedjax_nav.training.run import DivergenceError, Interrupted

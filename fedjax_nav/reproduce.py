@@ -332,7 +332,8 @@ def _thesis_eval(s: sw.Sweep) -> pd.DataFrame:
 
 
 def reproduce(scale: str = "ci", out: str | Path | None = None, only=None, seeds: int | None = None,
-              budget: int | None = None, progress: bool = True, echo: Callable[[str], None] = print) -> dict:
+              budget: int | None = None, progress: bool = True, echo: Callable[[str], None] = print,
+              devices: int | None = None) -> dict:
     """Run (or resume) the experiments and write the report folder. Returns reproduce.json's dict."""
     import jax
 
@@ -344,7 +345,7 @@ def reproduce(scale: str = "ci", out: str | Path | None = None, only=None, seeds
     sweeps = load_experiments(sc, only, seeds)
     t0 = time.time()
     jobs = sw.merge_jobs([p for s in sweeps for p in s.points])
-    stats = sw.run_jobs(jobs, out, budget, progress, desc=f"reproduce {scale}", echo=echo)
+    stats = sw.run_jobs(jobs, out, budget, progress, desc=f"reproduce {scale}", echo=echo, devices=devices)
     t_train = time.time() - t0
     points = out / "points"
     for s in sweeps:

@@ -32,6 +32,7 @@ two sweeps (or two experiments of `reproduce`) that ask for the same run share i
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -280,10 +281,21 @@ class Group:
     trainer: Trainer
     batches: list = field(default_factory=list)  # lists of jobs
     batch_rows: int = 0  # padded rows per batch (one compilation)
+    batched: frozenset = frozenset()  # HParams fields that differ between the group's rows
 
 
-def plan(jobs: list[Job], budget: int) -> list[Group]:
-    """Group jobs by static structure and pack each group into equal-size batches within budget."""
+def varying_fields(jobs: list[Job]) -> frozenset:
+    """HParams fields whose value differs between jobs (they get a batch axis; the rest stay
+    scalars, so that their gates stay conds)."""
+    hps = [hparams_from_config(j.cfg) for j in jobs]
+    return frozenset(f.name for f in dataclasses.fields(HParams)
+                     if any(not np.array_equal(np.asarray(getattr(h, f.name)), np.asarray(getattr(hps[0], f.name)))
+                            for h in hps[1:]))
+
+
+def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
+    """Group jobs by static structure and pack each group into equal-size batches within budget
+    (rows padded to a multiple of `devices`, over which the rows are spread)."""
     groups: dict[str, list[Job]] = {}
     for j in jobs:
         groups.setdefault(group_key(j.cfg), []).append(j)
@@ -310,24 +322,25 @@ def plan(jobs: list[Job], budget: int) -> list[Group]:
             rows += n
         if cur:
             batches.append(cur)
-        g = Group(key, js, trainer, batches, max(sum(j.cfg.run.seeds for j in b) for b in batches))
-        out.append(g)
+        rows = max(sum(j.cfg.run.seeds for j in b) for b in batches)
+        rows = -(-rows // devices) * devices
+        out.append(Group(key, js, trainer, batches, rows, varying_fields(js)))
     return out
 
 
-def stack_hparams(hps: list[HParams]) -> HParams:
-    """Rows' HParams -> one HParams: a leaf equal in every row stays a scalar (its gate stays a cond)."""
+def stack_hparams(hps: list[HParams], batched: frozenset | None = None) -> HParams:
+    """Rows' HParams -> one HParams with leaves [rows] for the fields in `batched` (default: the
+    fields that differ between these rows) and scalars for the rest (their gates stay conds)."""
+    out = {}
+    for f in dataclasses.fields(HParams):
+        xs = [np.asarray(getattr(h, f.name)) for h in hps]
+        vary = (f.name in batched) if batched is not None else any(not np.array_equal(x, xs[0]) for x in xs[1:])
+        out[f.name] = jnp.asarray(np.stack(xs)) if vary else jnp.asarray(xs[0])
+    return HParams(**out)
 
-    def one(*xs):
-        first = np.asarray(xs[0])
-        if all(np.array_equal(np.asarray(x), first) for x in xs[1:]):
-            return jnp.asarray(first)
-        return jnp.stack([jnp.asarray(x) for x in xs])
 
-    return jax.tree.map(one, *hps)
-
-
-def batch_rows(jobs: list[Job], size: int) -> tuple[np.ndarray, HParams, list[tuple[Job, int, int]]]:
+def batch_rows(jobs: list[Job], size: int, batched: frozenset | None = None
+               ) -> tuple[np.ndarray, HParams, list[tuple[Job, int, int]]]:
     """Seeds i32[size], HParams (leaves scalar or [size]) and (job, first row, seeds) per job."""
     seeds, hps, spans, r = [], [], [], 0
     for j in jobs:
@@ -339,7 +352,7 @@ def batch_rows(jobs: list[Job], size: int) -> tuple[np.ndarray, HParams, list[tu
     pad = size - len(seeds)
     seeds += [seeds[-1]] * pad
     hps += [hps[-1]] * pad
-    return np.asarray(seeds, np.int32), stack_hparams(hps), spans
+    return np.asarray(seeds, np.int32), stack_hparams(hps, batched), spans
 
 
 def batch_id(jobs: list[Job], size: int) -> str:
@@ -352,18 +365,28 @@ def batch_id(jobs: list[Job], size: int) -> str:
 
 @dataclass
 class Compiled:
-    """One jitted chunk per group, with a count of its traces (a sweep should trace once)."""
+    """One jitted chunk per group, with a count of its traces (a sweep should trace once); with a
+    mesh the rows (the trainer's seed axis) are spread over its devices."""
 
     trainer: Trainer
     num_episodes: int
+    mesh: Any = None
     traces: int = 0
+    fn: Callable | None = None
 
     def __post_init__(self):
-        def chunk(states, hp, first):
-            self.traces += 1
-            return self.trainer.chunk(states, hp, first, self.num_episodes)
+        if self.mesh is None:  # else built on the first batch, from its states' shapes
+            self.fn = self.trainer.compiled_chunk(self.num_episodes, on_trace=self._count)
 
-        self.fn = jax.jit(chunk, donate_argnums=0)
+    def _count(self):
+        self.traces += 1
+
+    def init(self, seeds: np.ndarray, hp: HParams):
+        states = self.trainer.init_seeds(jnp.asarray(seeds), hp, mesh=self.mesh)
+        if self.fn is None:
+            self.fn = self.trainer.compiled_chunk(self.num_episodes, mesh=self.mesh, states=states, hp=hp,
+                                                  on_trace=self._count)
+        return states
 
 
 def _slice(tree, lo: int, n: int):
@@ -396,14 +419,15 @@ def run_batch(group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Pa
 
     trainer = group.trainer
     cfg = trainer.cfg
-    seeds, hp, spans = batch_rows(jobs, group.batch_rows)
+    seeds, hp, spans = batch_rows(jobs, group.batch_rows, group.batched)
     bdir = batches_dir / batch_id(jobs, group.batch_rows)
-    states = trainer.init_seeds(jnp.asarray(seeds), hp)
+    states = compiled.init(seeds, hp)
     ckpt = Checkpointer(bdir, keep=2)
     E, K, every = cfg.run.episodes, cfg.run.chunk_episodes, cfg.run.checkpoint_every
     start, metrics = 0, None
     if ckpt.latest() is not None:
-        states, metrics = ckpt.restore(states)
+        restored, metrics = ckpt.restore(states)
+        states = jax.device_put(restored, jax.tree.map(lambda x: x.sharding, states))
         start = int(ckpt.latest())
     t0 = time.time()
     bar = tqdm(total=E, initial=start, desc=desc, unit="ep", leave=False, disable=not progress)
@@ -431,9 +455,17 @@ def run_batch(group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Pa
 
 
 def run_jobs(jobs: list[Job], out: str | Path, budget: int | None = None, progress: bool = True,
-             desc: str = "sweep", echo: Callable[[str], None] = print) -> dict:
-    """Train every job not already saved under `out/points/`. Returns timings and trace counts."""
+             desc: str = "sweep", echo: Callable[[str], None] = print, devices: int | None = None) -> dict:
+    """Train every job not already saved under `out/points/`. Returns timings and trace counts.
+
+    `devices` (default: every local device): the rows of a batch are spread over that many
+    devices (`fedjax-nav sweep` on CPU forces one host device per core: both cores busy)."""
     from tqdm.auto import tqdm
+
+    from fedjax_nav import parallel
+
+    devices = jax.local_device_count() if devices is None else devices
+    mesh = parallel.make_mesh(devices, "seeds", jax.local_devices()) if devices > 1 else None
 
     out = Path(out)
     points_dir, batches_dir = out / "points", out / "batches"
@@ -441,16 +473,16 @@ def run_jobs(jobs: list[Job], out: str | Path, budget: int | None = None, progre
     todo = [j for j in jobs if not is_done(points_dir, j)]
     skipped = len(jobs) - len(todo)
     budget = budget or default_memory_budget()
-    groups = plan(todo, budget) if todo else []
+    groups = plan(todo, budget, devices) if todo else []
     n_batches = sum(len(g.batches) for g in groups)
     echo(f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(todo)} to train in {len(groups)} "
-         f"compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB)")
-    stats = {"points": len(jobs), "skipped": skipped, "groups": [], "wall_s": 0.0}
+         f"compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB, {devices} device(s))")
+    stats = {"points": len(jobs), "skipped": skipped, "groups": [], "wall_s": 0.0, "devices": devices}
     t0 = time.time()
     outer = tqdm(total=n_batches, desc=desc, unit="batch", disable=not progress or n_batches < 2)
     try:
         for gi, g in enumerate(groups):
-            compiled = Compiled(g.trainer, g.trainer.cfg.run.chunk_episodes)
+            compiled = Compiled(g.trainer, g.trainer.cfg.run.chunk_episodes, mesh)
             walls = []
             for bi, b in enumerate(g.batches):
                 what = f"{g.trainer.cfg.method} [{gi + 1}/{len(groups)}] batch {bi + 1}/{len(g.batches)}"
@@ -530,11 +562,12 @@ def describe(sweep: Sweep) -> dict:
 
 
 def run_sweep(sweep: Sweep, out: str | Path, budget: int | None = None, progress: bool = True,
-              echo: Callable[[str], None] = print) -> tuple[pd.DataFrame, dict]:
+              echo: Callable[[str], None] = print, devices: int | None = None) -> tuple[pd.DataFrame, dict]:
     """What `fedjax-nav sweep` does: train the missing points, write the tables. Returns
     (summary table, run stats)."""
     out = Path(out)
-    stats = run_jobs(merge_jobs(sweep.points), out, budget, progress, desc=f"sweep {sweep.name}", echo=echo)
+    stats = run_jobs(merge_jobs(sweep.points), out, budget, progress, desc=f"sweep {sweep.name}", echo=echo,
+                     devices=devices)
     write_tables(sweep, out / "points", out)
     summ = point_summaries(sweep, out / "points")
     atomic_write(out / "sweep_stats.json", lambda p: Path(p).write_text(json.dumps(stats, indent=1)))

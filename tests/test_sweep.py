@@ -241,3 +241,38 @@ def test_stack_hparams_keeps_equal_fields_scalar():
     b = a.replace(tau=jax.numpy.float32(1.0))
     hp = sw.stack_hparams([a, b, b])
     assert hp.tau.shape == (3,) and hp.gamma.shape == () and hp.train_every.shape == ()
+
+
+def test_rows_pad_to_a_multiple_of_the_devices():
+    tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml", overrides=["env.episode_length=16"], seeds=1)
+    (g,) = sw.plan(sw.merge_jobs(tau.points), budget=2**40, devices=2)
+    assert g.batch_rows == 4 and g.batched == {"tau"}  # 3 points x 1 seed, padded to 4 rows
+    seeds, hp, spans = sw.batch_rows(g.batches[0], g.batch_rows, g.batched)
+    assert list(seeds) == [0, 0, 0, 0] and hp.tau.shape == (4,) and hp.gamma.shape == ()
+    assert [(lo, n) for _, lo, n in spans] == [(0, 1), (1, 1), (2, 1)]
+
+
+def test_a_sweep_spread_over_two_devices_matches_one(tiny, tmp_path):
+    """The tiny sweep again with its 12 rows over 2 forced CPU devices (the CLI's default on this
+    2-core machine), in a subprocess: same outcomes, numbers within float32 round-off."""
+    import os
+    import subprocess
+    import sys
+
+    script = ("import json, sys\nfrom fedjax_nav import sweep as sw\n"
+              "s = sw.load_sweep(sys.argv[1])\n"
+              "_, st = sw.run_sweep(s, sys.argv[2], progress=False, echo=lambda x: None)\n"
+              "print(json.dumps(st))\n")
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    out = tmp_path / "two"
+    r = subprocess.run([sys.executable, "-c", script, str(tiny["folder"] / "tiny.yaml"), str(out)], env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    stats = json.loads(r.stdout.strip().splitlines()[-1])
+    assert stats["devices"] == 2 and stats["groups"][0]["traces"] == 1 and stats["groups"][0]["batch_rows"] == 12
+    for p in tiny["sweep"].points:
+        a, b = _run_metrics(out / "points" / p.id), _run_metrics(tiny["out"] / "points" / p.id)
+        for k in ("goals", "collisions", "fed_events"):
+            np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.label} {k}")
+        for k in ("reward", "critic_loss", "q"):
+            np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, err_msg=f"{p.label} {k}")

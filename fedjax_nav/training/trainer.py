@@ -253,14 +253,21 @@ class Trainer:
 
         return jax.vmap(one_seed, in_axes=(0, hp_axes(hp)))(states, hp)
 
-    def compiled_chunk(self, num_episodes: int | None = None, mesh=None, states=None, hp: HParams | None = None):
+    def compiled_chunk(self, num_episodes: int | None = None, mesh=None, states=None, hp: HParams | None = None,
+                       on_trace=None):
         """jit(chunk) with the states donated (the replay buffers are updated in place).
 
         With a `mesh` (see `fedjax_nav.parallel`), `states` and `hp` (templates: arrays or
         ShapeDtypeStructs) fix the in/out shardings: the states keep their placement, the
-        metrics come back replicated (every process can read them)."""
+        metrics come back replicated (every process can read them). `on_trace()` is called each
+        time jit traces the chunk (sweeps count their compilations with it)."""
         n = num_episodes or self.cfg.run.chunk_episodes
-        fn = partial(self.chunk, num_episodes=n)
+
+        def fn(states, hp, first_episode):
+            if on_trace is not None:
+                on_trace()
+            return self.chunk(states, hp, first_episode, n)
+
         if mesh is None:
             return jax.jit(fn, donate_argnums=0)
         from fedjax_nav import parallel
