@@ -22,7 +22,8 @@ def _train(args: argparse.Namespace) -> int:
 
     if args.distributed:  # before anything starts jax's backends
         if not (args.out or args.resume):
-            raise UserError("--distributed needs --out DIR (or --resume DIR): every process must use the same run directory")
+            raise UserError("--distributed needs --out DIR (or --resume DIR): every process must use the same "
+                            "run directory")
         try:
             parallel.initialize_distributed(args.coordinator, args.num_processes, args.process_id)
         except parallel.ShardingError as e:
@@ -217,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         # measures the batch split over one device per core (must be set before jax starts).
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
                                    f" --xla_force_host_platform_device_count={os.cpu_count() or 1}").strip()
-    if args.command == "train" and (args.devices or 1) > 1 and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    forced = "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")
+    if args.command == "train" and (args.devices or 1) > 1 and not forced:
         # On CPU `--devices N` means N host devices, which must be set before jax starts (GPUs
         # ignore it); with --distributed each process holds its share of them.
         env_n = os.environ.get("JAX_NUM_PROCESSES", "1")

@@ -7,7 +7,8 @@ JSON report the tests read. Against the same program without a mesh, in that sub
   tau = 0, 0.5, 1) with the clients on 2 and 4 devices and the seeds on 2;
 - whole runs (2 seeds x 4 robots, 2 episodes of 32 steps in 2 compiled chunks): FLDDPG at
   tau = 0.5, 0, 1 (federated step every episode) and GSDDPG (global model carried, federated
-  step every 6 steps), with the clients on 1, 2, 4 devices and the seeds on 2;
+  step every 6 steps), with the clients on 1, 2, 4 devices, the seeds on 2, and a 2 x 2 mesh of
+  seeds x clients;
 - 20 repeated runs on 4 devices dispatched without blocking between them (the deadlock pitfall
   of collectives on fake CPU devices), each bitwise equal to the first.
 
@@ -41,6 +42,7 @@ SEEDS = 2
 DEVICES = 4
 EPISODES = 2  # in chunks of one: two compiled calls per run
 PLACEMENTS = [("clients", 1), ("clients", 2), ("clients", 4), ("seeds", 2)]
+GRID = ("seeds+clients", 4)  # a 2 x 2 mesh naming both axes (whole runs only)
 TIMEOUT = 600  # s: a cold compilation cache on a loaded 2-core machine
 
 
@@ -114,6 +116,9 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         return diff / (max(float(np.max(np.abs(a))) for a in ref) or 1.0)
 
     def mesh_of(axis, n):
+        if axis == GRID[0]:
+            return jax.make_mesh((2, n // 2), ("seeds", "clients"), axis_types=(jax.sharding.AxisType.Auto,) * 2,
+                                 devices=jax.devices()[:n])
         return parallel.make_mesh(n, axis)
 
     report = {"fed_step": {}, "train": {}, "seconds": {}}
@@ -164,7 +169,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         init = tr.init_seeds(jnp.arange(SEEDS), hp)
         chunk = tr.compiled_chunk()
         refs = [episodes(chunk, copy(init), h) for h in hps]
-        for axis, n in PLACEMENTS:
+        for axis, n in PLACEMENTS + [GRID]:
             mesh = mesh_of(axis, n)
             init = tr.init_seeds(jnp.arange(SEEDS), hp, mesh=mesh)
             chunk = tr.compiled_chunk(mesh=mesh, states=init, hp=hp)
@@ -227,7 +232,7 @@ def test_every_aggregator_across_devices(report):
 
 def test_training_on_1_2_4_devices_matches_one_device(report):
     train = report["train"]
-    assert {k.rsplit(" ", 1)[1] for k in train} == {f"{a}x{n}" for a, n in PLACEMENTS}
+    assert {k.rsplit(" ", 1)[1] for k in train} == {f"{a}x{n}" for a, n in PLACEMENTS + [GRID]}
     for key, r in train.items():
         assert r["metrics"]["max_rel"] <= RTOL, (key, r)  # every metric array
         assert r["networks"] <= RTOL, (key, r)  # every network, target, Adam moment, global model
