@@ -103,7 +103,7 @@ def evaluate_points(sweeps: list[sw.Sweep], points_dir: Path, attempts: int, ech
                          "efficiency_std": a["efficiency_std"], "best_success": b["success_rate"],
                          "best_success_seed_std": b["success_seed_std"]})
     df = pd.DataFrame(rows)
-    num = [c for c in df.columns if c not in ("point", "label", "experiment")]
+    num = [c for c in df.columns if c not in ("point", "label", "experiment", "seeds", "agents", "episodes")]
     return df.astype({c: float for c in num}) if len(df) else df  # None (no success) -> NaN
 
 
@@ -155,7 +155,11 @@ def _pm(m, s, d=3) -> str:
 
 
 def _v(x, d=3) -> str:
-    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else (f"{x:.{d}f}" if isinstance(x, float) else str(x))
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "-"
+    if isinstance(x, float):
+        return str(int(x)) if x.is_integer() and abs(x) >= 1 else f"{x:.{d}f}"
+    return str(x)
 
 
 def _t(x) -> str:
