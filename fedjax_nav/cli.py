@@ -55,6 +55,8 @@ def _train(args: argparse.Namespace) -> int:
         out = args.out or f"runs/{cfg.method}-{time.strftime('%Y%m%d-%H%M%S')}"
     verb = "resuming" if args.resume else "training"
     say = print if jax.process_index() == 0 else (lambda *a, **k: None)
+    if _auto_seed_devices(args) and cfg.run.seeds % jax.local_device_count() == 0 and jax.local_device_count() > 1:
+        args.devices, args.shard = jax.local_device_count(), "seeds"  # the fast path: whole seeds per device
     try:
         # one device and one process: no mesh, the program of a plain run
         mesh = parallel.make_mesh(args.devices, args.shard) if args.distributed or (args.devices or 1) > 1 else None
@@ -70,6 +72,16 @@ def _train(args: argparse.Namespace) -> int:
         f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s")
     say(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
     return 0
+
+
+def _auto_seed_devices(args: argparse.Namespace) -> bool:
+    """`train --seeds N` (N > 1, a multiple of the cores, no --devices, not resuming, one process)
+    spreads its seeds over one device per core by default: one XLA CPU device keeps only ~1-1.5
+    of the cores busy. Seeds stay whole on a device, so each seed's numbers match a one-device
+    run to float32 round-off (docs/scaling.md); `--devices 1` gives the one-device program."""
+    cores = os.cpu_count() or 1
+    return (args.devices is None and not args.distributed and not args.resume and args.seeds is not None
+            and args.seeds > 1 and cores > 1 and args.seeds % cores == 0)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -141,7 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train a method (all robots and seeds in one program)")
     p.add_argument("--config", required=False, default=None, help="YAML config (e.g. configs/thesis/flddpg.yaml)")
-    p.add_argument("--seeds", type=int, default=None, help="number of seeds, trained together (vmap)")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds, trained together (vmap); a multiple of the cores spreads "
+                   "them over one device per core unless --devices is given")
     p.add_argument("--episodes", type=int, default=None, help="shortcut for --set run.episodes=N")
     p.add_argument("--out", default=None, help="run directory (default runs/<method>-<time>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
@@ -211,27 +224,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _host_devices(args: argparse.Namespace) -> int:
+    """How many CPU devices to force for this command (GPUs ignore the flag). One XLA CPU device
+    keeps only ~1-1.5 of the cores busy on these programs, so the fast paths spread work over one
+    device per core: bench measures both; sweep/reproduce spread a batch's rows; train spreads
+    `--seeds N` (a multiple of the cores), or the N of `--devices N` (its share per process with
+    --distributed)."""
+    cores = os.cpu_count() or 1
+    if args.command == "bench":
+        return cores
+    if args.command in ("sweep", "reproduce"):
+        return args.devices or cores
+    if args.command == "train":
+        if (args.devices or 1) > 1:
+            env_n = os.environ.get("JAX_NUM_PROCESSES", "1")
+            nproc = (args.num_processes or (int(env_n) if env_n.isdigit() else 1)) if args.distributed else 1
+            return max(1, args.devices // nproc)
+        if _auto_seed_devices(args):
+            return cores
+    return 1
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "bench" and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-        # One XLA CPU device keeps only ~1-1.5 cores busy on these programs; the benchmark also
-        # measures the batch split over one device per core (must be set before jax starts).
+    n = _host_devices(args)
+    if n > 1 and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "") \
+            and "jax" not in sys.modules:  # only before jax starts (in-process callers keep theirs)
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
-                                   f" --xla_force_host_platform_device_count={os.cpu_count() or 1}").strip()
-    forced = "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")
-    if args.command == "train" and (args.devices or 1) > 1 and not forced:
-        # On CPU `--devices N` means N host devices, which must be set before jax starts (GPUs
-        # ignore it); with --distributed each process holds its share of them.
-        env_n = os.environ.get("JAX_NUM_PROCESSES", "1")
-        nproc = (args.num_processes or (int(env_n) if env_n.isdigit() else 1)) if args.distributed else 1
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
-                                   f" --xla_force_host_platform_device_count={max(1, args.devices // nproc)}").strip()
-    if args.command in ("sweep", "reproduce") and "xla_force_host_platform_device_count" not in os.environ.get(
-            "XLA_FLAGS", ""):
-        # The fast path by default: a batch of runs spread over one host device per core keeps
-        # both cores busy (one XLA CPU device uses ~1-1.5 of them on these programs).
-        n = args.devices or os.cpu_count() or 1
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}").strip()
+                                   f" --xla_force_host_platform_device_count={n}").strip()
     from fedjax_nav.checkpoint import CheckpointError
     from fedjax_nav.config import ConfigError
     from fedjax_nav.training.run import DivergenceError, Interrupted

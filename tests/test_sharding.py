@@ -310,3 +310,22 @@ def test_cli_devices_errors_exit_2(tmp_path, capsys):
     assert "2 devices asked for, 1 available" in capsys.readouterr().err
     rc = cli.main(["train", "--config", str(root / "flddpg.yaml"), "--distributed", "--num-processes", "2"])
     assert rc == 2 and "--distributed needs --out" in capsys.readouterr().err
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="the default spreads seeds over one device per core")
+def test_train_with_seeds_a_multiple_of_the_cores_spreads_them_by_default(tmp_path):
+    """`fedjax-nav train --seeds N` (N a multiple of the cores) runs the seeds over one forced CPU
+    device per core without any flag; `--devices 1` keeps the one-device program."""
+    cores = os.cpu_count()
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text("method: flddpg\nenv: {episode_length: 8}\nddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
+                   "fed: {period: 1}\nrun: {episodes: 1, chunk_episodes: 1, checkpoint_every: 0}\n")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAX_PLATFORMS"] = "cpu"
+    exe = [sys.executable, "-m", "fedjax_nav.cli", "train", "--config", str(cfg), "--seeds", str(cores), "--quiet"]
+    for extra, devices in (([], cores), (["--devices", "1"], None)):
+        out = tmp_path / f"run{len(extra)}"
+        r = subprocess.run(exe + ["--out", str(out)] + extra, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+        assert r.returncode == 0, r.stderr[-3000:]
+        s = json.loads((out / "summary.json").read_text())
+        assert s.get("devices") == devices and (devices is None or s["shard"] == "seeds"), s
