@@ -117,11 +117,7 @@ def by_setting(s: sw.Sweep, points_dir: Path) -> pd.DataFrame:
     from fedjax_nav.analysis.plots import per_episode
 
     rows = []
-    for p in s.points:
-        f = points_dir / p.id / "summary.json"
-        if not f.exists():
-            continue
-        js = json.loads(f.read_text())
+    for p, js in sw.finished(s, points_dir):
         pe = per_episode(pd.read_csv(points_dir / p.id / "metrics.csv"))
         E = int(pe["episode"].max()) + 1
         tail = pe[pe["episode"] >= E - min(25, E)].groupby("seed")[["success", "reward"]].mean()
@@ -218,11 +214,7 @@ def table2(sweeps_dir: Path = SWEEP_DIR) -> pd.DataFrame:
 
 def table3(s: sw.Sweep, points_dir: Path) -> pd.DataFrame:
     rows = []
-    for p in s.points:
-        f = points_dir / p.id / "summary.json"
-        if not f.exists():
-            continue
-        js = json.loads(f.read_text())
+    for p, js in sw.finished(s, points_dir):
         ref = (s.thesis.get("n_comm") or {}).get(p.cfg.method)
         rows.append({"method": p.cfg.method, "n_comm (Eq. 25)": js["communication"]["n_comm"],
                      "aggregation events counted": js["aggregation_events"], "thesis": ref,

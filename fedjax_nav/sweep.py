@@ -501,14 +501,18 @@ def run_jobs(jobs: list[Job], out: str | Path, budget: int | None = None, progre
 # ----------------------------------------------------------------------------- tables
 
 
+def finished(sweep: Sweep, points_dir: Path):
+    """(point, its summary.json) for every point of the sweep that has been trained, in grid order."""
+    for p in sweep.points:
+        f = Path(points_dir) / p.id / "summary.json"
+        if f.exists():
+            yield p, json.loads(f.read_text())
+
+
 def point_summaries(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
     """One row per point: swept values, method, seeds, last-25 success/reward (mean, std)."""
     rows = []
-    for p in sweep.points:
-        f = points_dir / p.id / "summary.json"
-        if not f.exists():
-            continue
-        s = json.loads(f.read_text())
+    for p, s in finished(sweep, points_dir):
         row = {"point": p.id, "label": p.label, "method": p.cfg.method}
         row.update({k: (p.cfg.method if k == "base" else v) for k, v in p.values.items()})
         row.update({k: s[k] for k in ("seeds", "episodes_done", "success_last", "success_last_std", "reward_last",
