@@ -90,7 +90,10 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
     return rows
 
 
-def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=()) -> list[dict]:
+def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=(),
+                devices: int = 1) -> list[dict]:
+    """`devices` > 1: the seeds spread over that many devices (what `train --seeds N` does by
+    default when N is a multiple of the cores)."""
     from fedjax_nav.agents.ddpg import update_flops
     from fedjax_nav.config import load_config
     from fedjax_nav.training.trainer import Trainer, hparams_from_config
@@ -101,8 +104,13 @@ def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, ove
                           [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides])
         tr = Trainer(cfg)
         hp = hparams_from_config(cfg)
-        states = tr.init_seeds(jnp.arange(s), hp)
-        f = tr.compiled_chunk()
+        mesh = None
+        if devices > 1:
+            from fedjax_nav import parallel
+
+            mesh = parallel.make_mesh(devices, "seeds", jax.local_devices())
+        states = tr.init_seeds(jnp.arange(s), hp, mesh=mesh)
+        f = tr.compiled_chunk(mesh=mesh, states=states, hp=hp)
         t0 = time.perf_counter()
         states, m = f(states, hp, jnp.int32(0))
         jax.block_until_ready(m)
@@ -117,7 +125,7 @@ def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, ove
         flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
         gflops = flops / dt / 1e9
         rows.append({
-            "bench": "train", "method": cfg.method, "seeds": s, "robots": N,
+            "bench": "train", "method": cfg.method, "seeds": s, "robots": N, "devices": devices,
             "agent_steps_per_s": agent_steps / dt, "agent_updates_per_s": updates / dt,
             "gflops": gflops, "ceiling_gflops": ceiling, "fraction_of_ceiling": gflops / ceiling if ceiling else None,
             "episode_s": dt / episodes, "run_estimate_s": dt / episodes * cfg.run.episodes,  # all seeds together
@@ -224,7 +232,8 @@ def format_rows(rows: list[dict]) -> str:
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
             lines.append(
-                f"| train {r['method']} | {r['seeds']} seed(s) x {r['robots']} robots | "
+                f"| train {r['method']} | {r['seeds']} seed(s) x {r['robots']} robots"
+                f"{f', seeds over {d} devices' if (d := r.get('devices', 1)) > 1 else ''} | "
                 f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} agent-updates/s, "
                 f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
                 f"episode {r['episode_s']:.2f} s, 125-episode run (all its seeds) ~{r['run_estimate_s']:.0f} s; "
@@ -244,6 +253,9 @@ def main(args) -> int:
         rows.append({"bench": "ceiling", "gflops": ceiling})
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
         rows += bench_train(seeds=(1,) if quick else (1, 8), ceiling=ceiling, overrides=over)
+        n_dev = jax.local_device_count()
+        if n_dev > 1 and not quick:  # the default fast path of `train --seeds 8` on this machine
+            rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over, devices=n_dev)
         # scaling with the number of clients: 1 and 40 robots (the thesis's rooms repeated), one seed
         for robots in ((1,) if quick else (1, 40)):
             rooms = ", ".join(f"train-{[0, 2, 3, 4, 5][i % 5]}" for i in range(robots))
