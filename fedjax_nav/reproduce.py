@@ -154,7 +154,7 @@ def _v(x, d=3) -> str:
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "-"
     if isinstance(x, float):
-        return str(int(x)) if x.is_integer() and abs(x) >= 1 else f"{x:.{d}f}"
+        return str(int(x)) if x.is_integer() else f"{x:.{d}f}"
     return str(x)
 
 
