@@ -6,7 +6,7 @@
 #   bash scripts/thesis_experiments.sh                       # every experiment, each file's seeds
 #   SEEDS=2 bash scripts/thesis_experiments.sh methods tau   # some, with 2 seeds per setting
 #
-# The whole programme is ~15 hours on a 2-core CPU (docs/reproduction.md).
+# The whole programme is about 8 hours on a 2-core CPU (docs/reproduction.md).
 set -euo pipefail
 OUT=${OUT:-runs/reproduce-thesis}
 EXPERIMENTS=${*:-gamma rho buffer_iddpg buffer_seddpg buffer_snddpg buffer_flddpg fed_period_steps fed_period_episodes tau methods pw_beta rw_beta improvements}
