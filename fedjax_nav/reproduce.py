@@ -252,8 +252,9 @@ def _runs(res: pd.DataFrame, col: str, fmt=str) -> dict:
     return {fmt(k): g for k, g in res.groupby(col, sort=False)}
 
 
-def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame) -> list[Path]:
-    """Fig. 11-20 from the experiments' results.csv (only those whose experiments ran)."""
+def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> list[Path]:
+    """Fig. 11-20 from the experiments' results.csv and `by_setting` tables (only those whose
+    experiments ran)."""
     from fedjax_nav.analysis import thesis_figures as tf
 
     def res(name):
@@ -274,7 +275,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame) -> list[Path]:
         tabs = []
         for name, prefix in (("fed_period_steps", "T"), ("fed_period_episodes", "E")):
             if name in sweeps:
-                t = by_setting(sweeps[name], out / "points")
+                t = tables[name].copy()
                 if len(t):
                     t["label"] = [f"{prefix}={v}" for v in t["setting"]]
                     tabs.append(t)
@@ -351,14 +352,14 @@ def reproduce(scale: str = "ci", out: str | Path | None = None, only=None, seeds
     t_eval = time.time() - t1
     atomic_write(out / "eval_summary.csv", lambda p: evals.to_csv(p, index=False))
     by_name = {s.name: s for s in sweeps}
-    figs = draw_figures(by_name, out, evals)
+    tables = {s.name: by_setting(s, points) for s in sweeps}
+    figs = draw_figures(by_name, out, evals, tables)
     t2 = table2()
     atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
     atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(_md_table(t2) + "\n"))
     t3 = table3(by_name["methods"], points) if "methods" in by_name else pd.DataFrame()
     atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
     atomic_write(out / "table3_communication.md", lambda p: Path(p).write_text(_md_table(t3) + "\n" if len(t3) else ""))
-    tables = {s.name: by_setting(s, points) for s in sweeps}
     for name, t in tables.items():
         atomic_write(out / "experiments" / name / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
     info = {

@@ -284,10 +284,9 @@ class Group:
     batched: frozenset = frozenset()  # HParams fields that differ between the group's rows
 
 
-def varying_fields(jobs: list[Job]) -> frozenset:
-    """HParams fields whose value differs between jobs (they get a batch axis; the rest stay
+def varying_fields(hps: list[HParams]) -> frozenset:
+    """HParams fields whose value differs between rows (they get a batch axis; the rest stay
     scalars, so that their gates stay conds)."""
-    hps = [hparams_from_config(j.cfg) for j in jobs]
     return frozenset(f.name for f in dataclasses.fields(HParams)
                      if any(not np.array_equal(np.asarray(getattr(h, f.name)), np.asarray(getattr(hps[0], f.name)))
                             for h in hps[1:]))
@@ -324,18 +323,18 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
             batches.append(cur)
         rows = max(sum(j.cfg.run.seeds for j in b) for b in batches)
         rows = -(-rows // devices) * devices
-        out.append(Group(key, js, trainer, batches, rows, varying_fields(js)))
+        out.append(Group(key, js, trainer, batches, rows, varying_fields([hparams_from_config(j.cfg) for j in js])))
     return out
 
 
 def stack_hparams(hps: list[HParams], batched: frozenset | None = None) -> HParams:
     """Rows' HParams -> one HParams with leaves [rows] for the fields in `batched` (default: the
     fields that differ between these rows) and scalars for the rest (their gates stay conds)."""
+    batched = varying_fields(hps) if batched is None else batched
     out = {}
     for f in dataclasses.fields(HParams):
         xs = [np.asarray(getattr(h, f.name)) for h in hps]
-        vary = (f.name in batched) if batched is not None else any(not np.array_equal(x, xs[0]) for x in xs[1:])
-        out[f.name] = jnp.asarray(np.stack(xs)) if vary else jnp.asarray(xs[0])
+        out[f.name] = jnp.asarray(np.stack(xs)) if f.name in batched else jnp.asarray(xs[0])
     return HParams(**out)
 
 
@@ -425,9 +424,8 @@ def run_batch(group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Pa
     ckpt = Checkpointer(bdir, keep=2)
     E, K, every = cfg.run.episodes, cfg.run.chunk_episodes, cfg.run.checkpoint_every
     start, metrics = 0, None
-    if ckpt.latest() is not None:
-        restored, metrics = ckpt.restore(states)
-        states = jax.device_put(restored, jax.tree.map(lambda x: x.sharding, states))
+    if ckpt.latest() is not None:  # orbax restores into the template's shardings
+        states, metrics = ckpt.restore(states)
         start = int(ckpt.latest())
     t0 = time.time()
     bar = tqdm(total=E, initial=start, desc=desc, unit="ep", leave=False, disable=not progress)
@@ -440,7 +438,7 @@ def run_batch(group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Pa
             bar.update(K)
             bar.set_postfix(success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}")
             if every and done % every == 0 and done < E:
-                ckpt.save(done, jax.tree.map(jnp.copy, states), metrics)
+                ckpt.save(done, jax.tree.map(jnp.copy, states), metrics)  # a copy: states get donated next
     finally:
         bar.close()
         ckpt.close()
@@ -561,7 +559,7 @@ def write_tables(sweep: Sweep, points_dir: Path, out_dir: Path) -> list[Path]:
 def describe(sweep: Sweep) -> dict:
     return {"name": sweep.name, "file": str(sweep.path), "description": sweep.description, "seeds": sweep.seeds,
             "keys": list(sweep.keys),
-            "points": [{"id": p.id, "label": p.label, "values": {k: v for k, v in p.values.items()}}
+            "points": [{"id": p.id, "label": p.label, "values": dict(p.values)}
                        for p in sweep.points]}
 
 

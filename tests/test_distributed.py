@@ -22,22 +22,16 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from test_sharding import ROBOTS, tiny_worlds  # the same four small rooms
 
 RTOL = 1e-6
-ROBOTS = 4
 EPISODES = 4
 TIMEOUT = 300  # s per run: a cold compilation cache on a loaded 2-core machine
 
 
 def tiny_config(folder: Path) -> Path:
     """FLDDPG in four small rooms, 4 episodes of 32 steps, a checkpoint every 2 episodes."""
-    worlds = []
-    for i in range(ROBOTS):
-        spec = {"size": [3.0 + 0.5 * i, 3.0], "circles": [[0.5, 0.4 * i - 0.6, 0.3]],
-                "starts": [[-1.0, -1.0, 0.3 * i]], "goals": [[1.0, 1.0]]}
-        path = folder / f"room-{i}.json"
-        path.write_text(json.dumps(spec))
-        worlds.append(str(path))
+    worlds = tiny_worlds(folder)
     cfg = {"method": "flddpg",
            "env": {"worlds": worlds, "episode_length": 32},
            "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
