@@ -140,8 +140,8 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
     `fedjax-nav sweep` runs). Both timed after compilation, alternately `repeat` times (best of
     each); the ratio is per run."""
     from fedjax_nav.config import load_config
-    from fedjax_nav.sweep import stack_hparams
-    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+    from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
+    from fedjax_nav.training.trainer import Trainer
 
     cfg = load_config("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
                       [f"run.chunk_episodes={episodes}", f"run.episodes={episodes}", f"fed.period={min(2, episodes)}",
@@ -149,7 +149,7 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
     tr = Trainer(cfg)
     base = hparams_from_config(cfg)
     taus = np.linspace(0.0, 1.0, points).astype(np.float32)
-    hps = [base.replace(tau=jnp.float32(t)) for t in taus]
+    hps = [base | {"fed.tau": jnp.float32(t)} for t in taus]
     f = tr.compiled_chunk()
 
     def run(seeds, hp):

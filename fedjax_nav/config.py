@@ -4,6 +4,10 @@ A config file has four sections (`env`, `ddpg`, `fed`, `run`) and the `method`. 
 a default, a type, an allowed range or set, and a note of whether it is *traced* (a JAX value:
 it can be swept in one compiled program) or *static* (it fixes shapes or the program).
 
+`traced=True` on a field is the one declaration of sweepability: `traced_fields()`, the trainer's
+`HParams` (`fedjax_nav.training.hparams`), the sweeps' grouping and the docs are derived from it,
+as rejax declares it once on the field.
+
     cfg = load_config("configs/thesis/flddpg.yaml", overrides=["ddpg.gamma=0.99"])
 
 Unknown keys, wrong types and out-of-range values raise `ConfigError`, naming the file, the key
@@ -19,7 +23,9 @@ from typing import Any
 
 import yaml
 
-METHODS = ("iddpg", "seddpg", "snddpg", "flddpg", "pwddpg", "rwddpg", "gsddpg", "flsddpg")
+from fedjax_nav.methods import METHODS as _METHOD_TABLE
+
+METHODS = tuple(_METHOD_TABLE)
 
 
 class ConfigError(ValueError):
@@ -56,7 +62,7 @@ class DDPGConfig:
     hidden: int = _f(64, lo=1, doc="hidden width (static)")
     depth: int = _f(3, lo=1, hi=16, doc="hidden layers (static)")
     activation: str = _f("relu", choices=("relu", "tanh", "elu", "gelu", "silu"), doc="(static)")
-    buffer_size: int = _f(10000, lo=1, doc="replay capacity per buffer (traced up to buffer_alloc)")
+    buffer_size: int = _f(10000, lo=1, traced=True, doc="replay capacity per buffer (traced up to buffer_alloc)")
     buffer_alloc: int = _f(0, lo=0, doc="allocated rows (static); 0 = buffer_size. Sweeps set the max")
     batch_size: int = _f(512, lo=1, doc="(static)")
     gamma: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="discount")
@@ -89,7 +95,7 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class Config:
-    method: str = _f("flddpg", choices=METHODS, doc="the method (section 4 of SCENARIO.md)")
+    method: str = _f("flddpg", choices=METHODS, doc="the method (docs/decisions.md, Methods)")
     env: EnvConfig = field(default_factory=EnvConfig)
     ddpg: DDPGConfig = field(default_factory=DDPGConfig)
     fed: FedConfig = field(default_factory=FedConfig)
@@ -107,11 +113,26 @@ class Config:
 SECTIONS = {"env": EnvConfig, "ddpg": DDPGConfig, "fed": FedConfig, "run": RunConfig}
 
 
-def traced_fields() -> list[str]:
-    """Dotted names of the fields that are JAX values (sweepable in one compilation)."""
-    return [f"{s}.{f.name}" for s, cls in SECTIONS.items() for f in fields(cls) if f.metadata.get("traced")] + [
-        "ddpg.buffer_size"
-    ]
+def traced_fields() -> tuple[str, ...]:
+    """Dotted names of the fields that are JAX values (sweepable in one compilation): exactly the
+    fields declared with `traced=True`."""
+    return tuple(f"{s}.{f.name}" for s, cls in SECTIONS.items() for f in fields(cls) if f.metadata.get("traced"))
+
+
+def field_info(dotted: str) -> dataclasses.Field:
+    """The dataclass field behind a dotted name ("ddpg.gamma"), with its metadata."""
+    if dotted == "method":
+        return {f.name: f for f in fields(Config)}["method"]
+    section, name = dotted.split(".")
+    return {f.name: f for f in fields(SECTIONS[section])}[name]
+
+
+def get(cfg: Config, dotted: str):
+    """The value of a dotted name ("ddpg.gamma", or "method")."""
+    if dotted == "method":
+        return cfg.method
+    section, name = dotted.split(".")
+    return getattr(getattr(cfg, section), name)
 
 
 # ----------------------------------------------------------------------------- validation

@@ -3,7 +3,7 @@ and `jax.distributed` start-up.
 
 The trainer's state is stacked `[seeds, clients, ...]` (clients = robots: agents, buffers,
 env states, observations and reward sums carry the client axis; epsilon, PRNG keys, reward step
-counts and GS's global model do not). A mesh with an axis named `"clients"` spreads the client
+counts and the aggregator's state (GS's global model) do not). A mesh with an axis named `"clients"` spreads the client
 axis over its devices, one named `"seeds"` the seed axis (a 2-D mesh may name both). The
 trainer's program is unchanged: `jax.jit` with these shardings lets XLA's SPMD partitioner run
 each client's env steps and DDPG updates on the device that holds it, and turn the federated

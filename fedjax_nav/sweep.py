@@ -52,15 +52,10 @@ import yaml
 from fedjax_nav.config import (Config, ConfigError, DDPGConfig, apply_overrides, from_dict, read_yaml, save_config,
                                to_dict)
 from fedjax_nav.training.run import atomic_write, metrics_frame, save_params, summarize
-from fedjax_nav.training.trainer import HParams, Trainer, hparams_from_config
+from fedjax_nav.config import traced_fields
+from fedjax_nav.training.hparams import HParams, hparams_from_config, stack_hparams, varying_fields
+from fedjax_nav.training.trainer import Trainer
 
-# Config fields that live in HParams: they batch inside one compilation.
-HPARAM_FIELDS = {
-    "ddpg.gamma": "gamma", "ddpg.rho": "rho", "ddpg.lr": "lr", "ddpg.train_every": "train_every",
-    "ddpg.target_every": "target_every", "ddpg.epsilon_start": "epsilon_start",
-    "ddpg.epsilon_decay": "epsilon_decay", "fed.tau": "tau", "fed.beta": "beta", "fed.period": "fed_period",
-    "ddpg.buffer_size": "buffer_size",
-}
 # Fields that change neither the results nor the program: left out of point ids and groups.
 BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddpg.buffer_alloc")
 SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate"}
@@ -123,7 +118,7 @@ def point_id(cfg: Config) -> str:
 
 def group_key(cfg: Config) -> str:
     """Configs with equal keys share one Trainer and one compilation."""
-    flat = {k: v for k, v in _flat(cfg).items() if k not in BOOKKEEPING and k not in HPARAM_FIELDS
+    flat = {k: v for k, v in _flat(cfg).items() if k not in BOOKKEEPING and k not in traced_fields()
             and k != "run.seed"}
     return json.dumps(flat, sort_keys=True)
 
@@ -284,14 +279,6 @@ class Group:
     batched: frozenset = frozenset()  # HParams fields that differ between the group's rows
 
 
-def varying_fields(hps: list[HParams]) -> frozenset:
-    """HParams fields whose value differs between rows (they get a batch axis; the rest stay
-    scalars, so that their gates stay conds)."""
-    return frozenset(f.name for f in dataclasses.fields(HParams)
-                     if any(not np.array_equal(np.asarray(getattr(h, f.name)), np.asarray(getattr(hps[0], f.name)))
-                            for h in hps[1:]))
-
-
 def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
     """Group jobs by static structure and pack each group into equal-size batches within budget
     (rows padded to a multiple of `devices`, over which the rows are spread)."""
@@ -325,17 +312,6 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
         rows = -(-rows // devices) * devices
         out.append(Group(key, js, trainer, batches, rows, varying_fields([hparams_from_config(j.cfg) for j in js])))
     return out
-
-
-def stack_hparams(hps: list[HParams], batched: frozenset | None = None) -> HParams:
-    """Rows' HParams -> one HParams with leaves [rows] for the fields in `batched` (default: the
-    fields that differ between these rows) and scalars for the rest (their gates stay conds)."""
-    batched = varying_fields(hps) if batched is None else batched
-    out = {}
-    for f in dataclasses.fields(HParams):
-        xs = [np.asarray(getattr(h, f.name)) for h in hps]
-        out[f.name] = jnp.asarray(np.stack(xs)) if f.name in batched else jnp.asarray(xs[0])
-    return HParams(**out)
 
 
 def batch_rows(jobs: list[Job], size: int, batched: frozenset | None = None
@@ -578,4 +554,4 @@ def run_sweep(sweep: Sweep, out: str | Path, budget: int | None = None, progress
 
 __all__ = ["Sweep", "Point", "SweepError", "load_sweep", "run_sweep", "run_jobs", "merge_jobs", "plan",
            "point_id", "group_key", "write_tables", "point_summaries", "point_metrics", "parse_bytes",
-           "HPARAM_FIELDS"]
+           ]

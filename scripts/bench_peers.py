@@ -81,7 +81,7 @@ def bench_sb3(steps: int, warm: int = 1000, learning_starts: int = 512) -> dict:
     from stable_baselines3 import DDPG
 
     from fedjax_nav.env.gym_env import NavGymEnv
-    from fedjax_nav.training import methods
+    from fedjax_nav import methods
 
     env = NavGymEnv(WORLD, episode_length=1024, random_starts=methods.get("iddpg").random_starts)
     # the gym wrapper alone, random actions from Python: the floor under any Python-stepped learner

@@ -329,7 +329,7 @@ def test_injected_nan_stops_the_run_and_keeps_the_last_good_checkpoint(env, cfg_
 
     # Continue to 4 episodes with a NaN learning rate: the first update of episode 2 poisons the nets.
     cfg = load_config(out / "config.yaml", ["run.episodes=4"])
-    nan_hp = hparams_from_config(cfg).replace(lr=jnp.float32(jnp.nan))
+    nan_hp = hparams_from_config(cfg) | {"ddpg.lr": jnp.float32(jnp.nan)}
     with pytest.raises(DivergenceError) as info:
         train(cfg, out, progress=False, hp=nan_hp, resume=True)
     msg = str(info.value)

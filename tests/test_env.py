@@ -466,3 +466,35 @@ def test_noise_with_positive_std_changes_ranges_and_moves(batch_setup, noisy_env
     kept = ~term_a  # after a terminal step the robot is at a start with no previous action
     np.testing.assert_allclose(obs_a[..., 26:][kept], commanded[kept], atol=1e-7)
     np.testing.assert_array_equal(obs_a[..., 26:][~kept], 0.0)
+
+
+@pytest.mark.parametrize("env_name", ["learn_env", "lidar_env"])
+def test_terminal_step_reports_the_true_final_observation(env_name, request):
+    """Driving into a wall: the transition's s' (`info["final_obs"]`) is the observation at the
+    pose reached (the wall within D_c ahead), while `obs` is already the next attempt's start."""
+    jenv = request.getfixturevalue(env_name)
+    world = tiny_world(starts=[[0.0, 0.74, PI / 2]], goals=[[-2.0, -0.5]])  # facing the wall y = 1
+    params = make_params(world)
+    obs0, state = jenv.reset(jax.random.key(0), params)
+    obs, new, _, term, _, info = jenv.step(jax.random.key(1), state, jnp.array([1.0, 0.0]), params)
+    assert bool(term) and bool(info["collision"])
+    final = np.asarray(info["final_obs"], np.float64)
+    pose = np.asarray(info["pose"], np.float64)  # 0.74 + 0.025: 0.235 m from the wall
+    ref = np.asarray(lidar(world.segments, jnp.asarray(pose, jnp.float32), 24, 3.5, world.circles))
+    np.testing.assert_allclose(final[:24], ref, atol=1e-5)
+    assert final[0] == pytest.approx(1.0 - pose[1], abs=1e-5) and final[0] < 0.25  # beam 0 hits the wall
+    assert final[24] == pytest.approx(math.hypot(-2.0 - pose[0], -0.5 - pose[1]), abs=1e-5)
+    np.testing.assert_allclose(final[26:], [1.0, 0.0])  # the action just taken
+    # the policy's next observation is the start's, as at reset
+    np.testing.assert_allclose(np.asarray(obs), np.asarray(obs0), atol=1e-6)
+    assert not np.allclose(final, np.asarray(obs))
+
+
+def test_final_obs_equals_obs_on_ordinary_steps(learn_env):
+    world = tiny_world(starts=[[0.0, 0.0, 0.0]], goals=[[4.0, 0.5]])
+    _, _, steps = run(learn_env, world, [[0.5, 0.2]] * 3)
+    params = make_params(world)
+    _, state = learn_env.reset(jax.random.key(0), params)
+    obs, _, _, term, _, info = learn_env.step(jax.random.key(1), state, jnp.array([0.5, 0.2]), params)
+    assert not bool(term)
+    np.testing.assert_array_equal(np.asarray(obs), np.asarray(info["final_obs"]))

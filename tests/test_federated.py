@@ -1,5 +1,5 @@
 """Federated aggregators against numpy (float64) references on random stacked pytrees, and the
-communication accounting of Table 3 (SCENARIO.md sections 4 and 5)."""
+communication accounting of Table 3 (docs/decisions.md, Federated aggregation and Communication)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 
 from fedjax_nav.federated import aggregators as agg
 from fedjax_nav.federated import communication
-from fedjax_nav.training import methods
+from fedjax_nav import methods
 
 K = 4
 
@@ -44,23 +44,30 @@ def assert_leaves_close(tree, ref, rtol=1e-5, atol=1e-6):
 R = jnp.array([0.5, -1.0, 2.0, 0.25], jnp.float32)
 
 
+def aggregate(kind, params, r, tau, beta, state=None, mask=None):
+    """One `update` of the named aggregator (state: its own init when None)."""
+    a = agg.make(kind)
+    state = a.init(params) if state is None else state
+    return a.update(params, r, state, {"fed.tau": tau, "fed.beta": beta}, mask)
+
+
 # ----------------------------------------------------------------------------- soft FedAvg
 
 
 @pytest.mark.parametrize("tau", [0.0, 0.3, 0.5, 1.0])
 def test_soft_fedavg_against_numpy(tau):
     p = random_params(0)
-    out, _ = agg.aggregate("soft", p, R, jnp.float32(tau), jnp.float32(0.5))
+    out, _ = aggregate("soft", p, R, jnp.float32(tau), jnp.float32(0.5))
     assert_leaves_close(out, np_mix(p, np.full(K, 1 / K), tau))
     assert jax.tree.structure(out) == jax.tree.structure(p)
 
 
 def test_soft_fedavg_tau0_is_unchanged_and_tau1_is_the_mean():
     p = random_params(1)
-    same, _ = agg.aggregate("soft", p, R, jnp.float32(0.0), None)
+    same, _ = aggregate("soft", p, R, jnp.float32(0.0), None)
     for a, b in zip(jax.tree.leaves(same), jax.tree.leaves(p)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # IDDPG, bitwise
-    hard, _ = agg.aggregate("soft", p, R, jnp.float32(1.0), None)
+    hard, _ = aggregate("soft", p, R, jnp.float32(1.0), None)
     for a, b in zip(jax.tree.leaves(hard), np_leaves(p)):
         a = np.asarray(a)
         for k in range(K):
@@ -70,8 +77,8 @@ def test_soft_fedavg_tau0_is_unchanged_and_tau1_is_the_mean():
 
 def test_soft_fedavg_ignores_rewards():
     p = random_params(2)
-    a, _ = agg.aggregate("soft", p, R, jnp.float32(0.5), jnp.float32(0.5))
-    b, _ = agg.aggregate("soft", p, -10 * R, jnp.float32(0.5), jnp.float32(2.0))
+    a, _ = aggregate("soft", p, R, jnp.float32(0.5), jnp.float32(0.5))
+    b, _ = aggregate("soft", p, -10 * R, jnp.float32(0.5), jnp.float32(2.0))
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
@@ -86,14 +93,14 @@ def test_positive_weighting_is_a_softmax_of_rewards(beta, tau):
     r = np.asarray(R, np.float64)
     w = np.exp(beta * r) / np.exp(beta * r).sum()
     np.testing.assert_allclose(np.asarray(agg.positive_weights(R, jnp.float32(beta))), w, rtol=1e-6)
-    out, _ = agg.aggregate("pw", p, R, jnp.float32(tau), jnp.float32(beta))
+    out, _ = aggregate("pw", p, R, jnp.float32(tau), jnp.float32(beta))
     assert_leaves_close(out, np_mix(p, w, tau))
 
 
 def test_positive_weighting_with_equal_rewards_is_fedavg():
     p = random_params(4)
     r = jnp.full(K, -3.0)
-    a, _ = agg.aggregate("pw", p, r, jnp.float32(0.5), jnp.float32(1.0))
+    a, _ = aggregate("pw", p, r, jnp.float32(0.5), jnp.float32(1.0))
     assert_leaves_close(a, np_mix(p, np.full(K, 1 / K), 0.5))
 
 
@@ -105,7 +112,7 @@ def test_real_weighting_signed_normalised_with_negative_rewards(beta, tau):
     w = np.sign(r) * np.abs(r) ** beta / (np.abs(r) ** beta).sum()
     assert (w < 0).any()  # negative rewards push the aggregate away from those clients
     np.testing.assert_allclose(np.asarray(agg.real_weights(R, jnp.float32(beta))), w, rtol=1e-5)
-    out, _ = agg.aggregate("rw", p, R, jnp.float32(tau), jnp.float32(beta))
+    out, _ = aggregate("rw", p, R, jnp.float32(tau), jnp.float32(beta))
     assert_leaves_close(out, np_mix(p, w, tau), rtol=1e-5, atol=1e-5)
 
 
@@ -113,7 +120,7 @@ def test_real_weighting_all_negative_rewards():
     p = random_params(6)
     r = jnp.array([-1.0, -2.0, -0.5, -4.0])
     w = -np.abs(np.asarray(r, np.float64)) ** 0.5 / (np.abs(np.asarray(r, np.float64)) ** 0.5).sum()
-    out, _ = agg.aggregate("rw", p, r, jnp.float32(1.0), jnp.float32(0.5))
+    out, _ = aggregate("rw", p, r, jnp.float32(1.0), jnp.float32(0.5))
     assert_leaves_close(out, np_mix(p, w, 1.0), rtol=1e-5, atol=1e-5)  # theta_w = -(convex mean)
 
 
@@ -123,7 +130,7 @@ def test_real_weighting_all_zero_rewards_falls_back_to_the_mean():
     w = np.asarray(agg.real_weights(r, jnp.float32(0.5)))
     assert np.all(np.isfinite(w))
     np.testing.assert_allclose(w, np.full(K, 1 / K))
-    out, _ = agg.aggregate("rw", p, r, jnp.float32(0.5), jnp.float32(0.5))
+    out, _ = aggregate("rw", p, r, jnp.float32(0.5), jnp.float32(0.5))
     assert_leaves_close(out, np_mix(p, np.full(K, 1 / K), 0.5))
     # and under jit with a zero somewhere (sign(0) = 0 weight, no nan from 0 ** beta)
     r1 = jnp.array([0.0, 1.0, 0.0, 3.0])
@@ -149,11 +156,11 @@ def test_global_soft_first_and_second_step_against_numpy(beta):
     p1 = random_params(10)  # after some local training
     p2 = random_params(11)
     prev = agg.init_global(p0)  # Decision: theta_w_prev starts as the mean of the initial params
-    out1, tw1 = agg.aggregate("gs", p1, R, jnp.float32(0.5), jnp.float32(beta), prev)
+    out1, tw1 = aggregate("gs", p1, R, jnp.float32(0.5), jnp.float32(beta), prev)
     ref1 = [(1 - beta) * a.mean(0) + beta * b.mean(0) for a, b in zip(np_leaves(p0), np_leaves(p1))]
     assert_leaves_close(tw1, ref1)
     assert_leaves_close(out1, [np.broadcast_to(r[None], (K, *r.shape)) for r in ref1])  # theta_k <- theta_w
-    out2, tw2 = agg.aggregate("gs", p2, R, jnp.float32(0.5), jnp.float32(beta), tw1)
+    out2, tw2 = aggregate("gs", p2, R, jnp.float32(0.5), jnp.float32(beta), tw1)
     ref2 = [(1 - beta) * r1 + beta * c.mean(0) for r1, c in zip(ref1, np_leaves(p2))]
     assert_leaves_close(tw2, ref2)
     assert_leaves_close(out2, [np.broadcast_to(r[None], (K, *r.shape)) for r in ref2])
@@ -161,8 +168,8 @@ def test_global_soft_first_and_second_step_against_numpy(beta):
 
 def test_global_soft_ignores_tau_and_rewards():
     p, prev = random_params(12), agg.init_global(random_params(13))
-    a, ta = agg.aggregate("gs", p, R, jnp.float32(0.0), jnp.float32(0.5), prev)
-    b, tb = agg.aggregate("gs", p, -R, jnp.float32(1.0), jnp.float32(0.5), prev)
+    a, ta = aggregate("gs", p, R, jnp.float32(0.0), jnp.float32(0.5), prev)
+    b, tb = aggregate("gs", p, -R, jnp.float32(1.0), jnp.float32(0.5), prev)
     for x, y in zip(jax.tree.leaves((a, ta)), jax.tree.leaves((b, tb))):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
@@ -172,10 +179,26 @@ def test_global_soft_ignores_tau_and_rewards():
 
 def test_aggregate_none_and_unknown():
     p = random_params(14)
-    out, tw = agg.aggregate("none", p, R, jnp.float32(1.0), jnp.float32(1.0), {"x": 1})
+    out, tw = aggregate("none", p, R, jnp.float32(1.0), jnp.float32(1.0), {"x": 1})
     assert out is p and tw == {"x": 1}
-    with pytest.raises(ValueError, match="unknown aggregator"):
-        agg.aggregate("median", p, R, 0.5, 0.5)
+    with pytest.raises(ValueError, match="unknown aggregator 'nonsense'"):
+        agg.make("nonsense")
+
+
+@pytest.mark.parametrize("kind", ["soft", "pw", "rw", "gs"])
+def test_absent_clients_keep_their_params_and_do_not_count(kind):
+    """A client outside the participation mask neither sends nor receives."""
+    p = random_params(16)
+    mask = jnp.array([True, False, True, True])
+    state = agg.make(kind).init(random_params(17))  # GS: a global model from elsewhere
+    out, _ = aggregate(kind, p, R, jnp.float32(0.5), jnp.float32(0.5), state, mask)
+    for g, x in zip(jax.tree.leaves(out), jax.tree.leaves(p)):
+        np.testing.assert_array_equal(np.asarray(g)[1], np.asarray(x)[1])
+    # the absent client's parameters do not enter the aggregate: moving them changes nothing
+    moved = jax.tree.map(lambda x: x.at[1].add(1e3), p)
+    out2, _ = aggregate(kind, moved, R, jnp.float32(0.5), jnp.float32(0.5), state, mask)
+    for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(out2)):
+        np.testing.assert_allclose(np.asarray(a)[[0, 2, 3]], np.asarray(b)[[0, 2, 3]], rtol=1e-6, atol=1e-6)
 
 
 def test_aggregators_jit_with_traced_hyperparameters():
@@ -185,7 +208,7 @@ def test_aggregators_jit_with_traced_hyperparameters():
     @jax.jit
     def f(params, r, tau, beta):
         traces.append(1)
-        return agg.aggregate("rw", params, r, tau, beta)[0]
+        return aggregate("rw", params, r, tau, beta)[0]
 
     for tau, beta in [(0.2, 0.5), (0.7, 1.5)]:
         r = np.asarray(R, np.float64)
@@ -194,18 +217,16 @@ def test_aggregators_jit_with_traced_hyperparameters():
     assert len(traces) == 1
 
 
-def test_methods_table():
-    """SCENARIO.md section 4: networks, buffers, aggregator and starts per method."""
-    table = {  # shared_network, shared_buffer, aggregator, random_starts, sends_rewards
-        "iddpg": (False, False, "none", False, False), "seddpg": (False, True, "none", False, False),
-        "snddpg": (True, True, "none", False, False), "flddpg": (False, False, "soft", False, False),
-        "pwddpg": (False, False, "pw", False, True), "rwddpg": (False, False, "rw", False, True),
-        "gsddpg": (False, False, "gs", False, False), "flsddpg": (False, False, "soft", True, False),
-    }
-    assert set(methods.METHODS) == set(table)
-    for name, row in table.items():
-        m = methods.get(name.upper())
-        assert (m.shared_network, m.shared_buffer, m.aggregator, m.random_starts, m.sends_rewards) == row, name
+def test_methods_table_is_the_one_source_of_names():
+    """The config's method choices and the aggregators the methods name come from the tables
+    (what each method does is tested on the trainer it builds: tests/test_trainer.py)."""
+    from fedjax_nav.config import METHODS
+
+    assert METHODS == tuple(methods.METHODS)
+    for m in methods.METHODS.values():
+        assert m.aggregator in agg.AGGREGATORS, m.name
+        assert m.sends_rewards == (m.aggregator in ("pw", "rw")), m.name  # Table 3: PW/RW send r_k
+    assert methods.get("FLDDPG") is methods.METHODS["flddpg"]
     with pytest.raises(ValueError, match="unknown method"):
         methods.get("ppo")
 

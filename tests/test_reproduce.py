@@ -15,7 +15,7 @@ import pytest
 from fedjax_nav import cli
 from fedjax_nav import reproduce as rp
 from fedjax_nav.federated.comm import communication
-from fedjax_nav.training import methods
+from fedjax_nav import methods
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURES = ["fig11_snddpg_buffer.png", "fig12_fed_period_learning.png", "fig13_fed_period_success.png", "fig14_tau.png",

@@ -104,7 +104,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         """Each network as one vector: actor, critic, their targets, Adam's moments, GS's global model."""
         a = st.agents
         return [a.actor, a.critic, a.actor_targ, a.critic_targ, a.actor_opt.mu, a.actor_opt.nu, a.critic_opt.mu,
-                a.critic_opt.nu, st.theta_w]
+                a.critic_opt.nu, st.agg_state]
 
     def network_rel(ref, got) -> float:
         """max |a - b| / max |a| over all leaves of one network (per array, a bias near zero would
@@ -133,11 +133,11 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         st = st.replace(reward_sum=jax.random.normal(jax.random.key(1), st.reward_sum.shape),
                         reward_steps=jnp.full((SEEDS,), 20.0))
         if method == "gsddpg":  # a global model away from the clients' mean
-            st = st.replace(theta_w=jax.tree.map(lambda x: x + 0.1, st.theta_w))
+            st = st.replace(agg_state=jax.tree.map(lambda x: x + 0.1, st.agg_state))
         step = jax.vmap(tr.federated_step, in_axes=(0, hp_axes(hp)))
         taus = (0.0, 0.5, 1.0) if method != "gsddpg" else (0.5,)  # GS has no tau (beta steps the global model)
         for tau in taus:
-            h = hp.replace(tau=jnp.float32(tau))
+            h = hp | {"fed.tau": jnp.float32(tau)}
             ref = jax.jit(step)(st, h)
             for axis, n in PLACEMENTS[1:]:  # (a mesh of one device is checked on whole runs)
                 mesh = mesh_of(axis, n)
@@ -165,7 +165,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
                                 ("gsddpg", ["fed.period_unit=steps", "fed.period=6"], (0.5,))]:
         cfg = load_config(root / f"{method}.yaml", tiny_overrides(worlds) + extra)
         tr, hp = Trainer(cfg), hparams_from_config(cfg)
-        hps = [hp.replace(tau=jnp.float32(tau)) for tau in taus]
+        hps = [hp | {"fed.tau": jnp.float32(tau)} for tau in taus]
         init = tr.init_seeds(jnp.arange(SEEDS), hp)
         chunk = tr.compiled_chunk()
         refs = [episodes(chunk, copy(init), h) for h in hps]
@@ -178,7 +178,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
                 key = f"{method} tau={tau} {axis}x{n}"
                 r = report["train"][key] = compare(ref, got)  # everything, buffers and env states too
                 r["metrics"] = compare(ref[0], got[0])
-                r["params"] = compare((ref[1].agents, ref[1].theta_w), (got[1].agents, got[1].theta_w))
+                r["params"] = compare((ref[1].agents, ref[1].agg_state), (got[1].agents, got[1].agg_state))
                 r["networks"] = max(network_rel(a, b) for a, b in zip(networks(ref[1]), networks(got[1])))
                 r["discrete_equal"] = all(np.array_equal(np.asarray(a[k]), np.asarray(b[k]))
                                           for a, b in zip(ref[0], got[0]) for k in ("goals", "collisions", "fed_events"))
@@ -294,7 +294,7 @@ def test_state_shardings_by_field(tmp_path):
     spec = lambda t: {x.spec for x in jax.tree.leaves(t)}  # noqa: E731
     for name in parallel.CLIENT_FIELDS:
         assert spec(getattr(sh, name)) == {P(None, "clients")}, name
-    for name in ("epsilon", "theta_w", "reward_steps", "key"):
+    for name in ("epsilon", "agg_state", "reward_steps", "key"):
         assert spec(getattr(sh, name)) == {P(None)}, name
     sh = parallel.state_shardings(template, parallel.make_mesh(1, "seeds"))
     assert {x.spec for x in jax.tree.leaves(sh)} == {P("seeds")}

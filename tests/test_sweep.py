@@ -235,20 +235,20 @@ def test_cli_sweep_prints_the_summary_and_resumes(tiny, capsys):
 
 def test_stack_hparams_keeps_equal_fields_scalar():
     from fedjax_nav.config import load_config
-    from fedjax_nav.training.trainer import hparams_from_config
+    from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
 
     a = hparams_from_config(load_config(ROOT / "configs" / "thesis" / "flddpg.yaml"))
-    b = a.replace(tau=jax.numpy.float32(1.0))
-    hp = sw.stack_hparams([a, b, b])
-    assert hp.tau.shape == (3,) and hp.gamma.shape == () and hp.train_every.shape == ()
+    b = a | {"fed.tau": jax.numpy.float32(1.0)}
+    hp = stack_hparams([a, b, b])
+    assert hp["fed.tau"].shape == (3,) and hp["ddpg.gamma"].shape == () and hp["ddpg.train_every"].shape == ()
 
 
 def test_rows_pad_to_a_multiple_of_the_devices():
     tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml", overrides=["env.episode_length=16"], seeds=1)
     (g,) = sw.plan(sw.merge_jobs(tau.points), budget=2**40, devices=2)
-    assert g.batch_rows == 4 and g.batched == {"tau"}  # 3 points x 1 seed, padded to 4 rows
+    assert g.batch_rows == 4 and g.batched == {"fed.tau"}  # 3 points x 1 seed, padded to 4 rows
     seeds, hp, spans = sw.batch_rows(g.batches[0], g.batch_rows, g.batched)
-    assert list(seeds) == [0, 0, 0, 0] and hp.tau.shape == (4,) and hp.gamma.shape == ()
+    assert list(seeds) == [0, 0, 0, 0] and hp["fed.tau"].shape == (4,) and hp["ddpg.gamma"].shape == ()
     assert [(lo, n) for _, lo, n in spans] == [(0, 1), (1, 1), (2, 1)]
 
 

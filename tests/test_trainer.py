@@ -114,8 +114,7 @@ def test_every_thesis_config_trains_with_finite_metrics(name):
     m, tr = r.metrics, r.trainer
     S, E = len(r.seeds), r.cfg.run.episodes
     assert METRIC_KEYS <= set(m), set(m)
-    if "params_finite" in m:
-        assert m["params_finite"].all()
+    assert m["params_finite"].shape == (S, E, tr.n_nets) and m["params_finite"].all()
     assert m["reward"].shape == (S, E, ROBOTS) and m["goals"].shape == (S, E, ROBOTS)
     assert m["critic_loss"].shape == (S, E, tr.n_nets) and m["epsilon"].shape == (S, E)
     for k, v in m.items():
@@ -145,7 +144,7 @@ def test_every_method_has_its_structure():
         cfg = load_config(THESIS / f"{name}.yaml", TINY)
         tr = Trainer(cfg)
         assert (tr.n_nets, tr.n_bufs) == (nets, bufs), name
-        assert bool(np.all(np.asarray(tr.env_params.random_starts))) == (name == "flsddpg"), name
+        assert bool(np.all(np.asarray(tr.env_params(hparams_from_config(cfg)).random_starts))) == (name == "flsddpg"), name
 
 
 # ----------------------------------------------------------------------------- SEDDPG / SNDDPG
@@ -161,8 +160,10 @@ def test_shared_buffer_holds_every_robots_transitions(name):
     assert np.all(np.abs(obs[:filled]).sum(1) > 0)  # every robot's every step is in
     assert np.all(obs[filled:] == 0) and np.all(np.asarray(buf.reward[0, 0, filled:]) == 0)
     # rows are written step by step, robot by robot: row g * 5 + k is robot k at step g, so its
-    # next_obs is the obs of row (g + 1) * 5 + k (a terminal step's next_obs is the new start's)
-    np.testing.assert_array_equal(nxt[: filled - ROBOTS], obs[ROBOTS:filled])
+    # next_obs is the obs of row (g + 1) * 5 + k, except on a terminal step, whose next_obs is the
+    # true observation where the robot ended (the next row starts from a start pose)
+    done = np.asarray(buf.done[0, 0, : filled - ROBOTS]) > 0
+    np.testing.assert_array_equal(nxt[: filled - ROBOTS][~done], obs[ROBOTS:filled][~done])
     # the robots are in different rooms: their rows differ
     assert len({obs[k].tobytes() for k in range(ROBOTS)}) == ROBOTS
     # SEDDPG keeps 5 independent networks, SNDDPG one
@@ -218,7 +219,7 @@ def test_aggregation_events_every_T_update_steps_and_gs_makes_clients_equal():
     # would be 35): every client holds the global model, which is the carried theta_w
     st = seed_slice(r.states, 0)
     for name in ("actor", "critic"):
-        for leaf, w in zip(jax.tree.leaves(getattr(st.agents, name)), jax.tree.leaves(st.theta_w[name])):
+        for leaf, w in zip(jax.tree.leaves(getattr(st.agents, name)), jax.tree.leaves(st.agg_state[name])):
             leaf = np.asarray(leaf)
             for k in range(ROBOTS):
                 np.testing.assert_array_equal(leaf[k], np.asarray(w))
@@ -281,11 +282,11 @@ def test_gs_federated_step_moves_the_global_model_and_every_client_to_it(include
     st = _fed_state(REWARD_SUM)
     nets = {"actor": st.agents.actor, "critic": st.agents.critic}
     prev = jax.tree.map(lambda x: x + 1.0, agg.init_global(nets))  # a global model != the clients' mean
-    st = st.replace(theta_w=prev)
+    st = st.replace(agg_state=prev)
     out = tr.federated_step(st, hparams_from_config(cfg))
     ref = [0.5 * np.asarray(p, np.float64) + 0.5 * np.asarray(c, np.float64).mean(0)
            for p, c in zip(jax.tree.leaves(prev), jax.tree.leaves(nets))]
-    for got, want in zip(jax.tree.leaves(out.theta_w), ref):
+    for got, want in zip(jax.tree.leaves(out.agg_state), ref):
         np.testing.assert_allclose(np.asarray(got), want, rtol=1e-5, atol=1e-6)
     clients = {"actor": out.agents.actor, "critic": out.agents.critic}
     for got, want in zip(jax.tree.leaves(clients), ref):
@@ -302,7 +303,7 @@ def test_gs_global_model_starts_as_the_mean_of_the_initial_params():
     r = run_thesis("gsddpg")
     st = seed_slice(r.trainer.init_seeds(jnp.asarray([0]), r.hp), 0)
     init = {"actor": st.agents.actor, "critic": st.agents.critic}
-    for w, p in zip(jax.tree.leaves(st.theta_w), jax.tree.leaves(init)):
+    for w, p in zip(jax.tree.leaves(st.agg_state), jax.tree.leaves(init)):
         np.testing.assert_allclose(np.asarray(w), np.asarray(p).mean(0), rtol=1e-6, atol=1e-7)
     # every robot's network has its own initialisation
     k = np.asarray(st.agents.actor["params"]["Dense_0"]["kernel"])

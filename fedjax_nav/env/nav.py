@@ -53,6 +53,7 @@ class EnvState:
     dist: jax.Array  # f32[] goal distance at this pose
     start_index: jax.Array  # i32[] start used at the last reset
     t: jax.Array  # i32[] steps taken in this episode
+    start_ranges: jax.Array  # f32[starts, beams] the noiseless scan at each start row, cast at reset
 
 
 class NavEnv:
@@ -109,7 +110,7 @@ class NavEnv:
         bearing = jnp.arctan2(jnp.sin(bearing), jnp.cos(bearing))
         return jnp.concatenate([ranges, jnp.stack([state.dist, bearing]), state.prev_action])
 
-    def _start(self, key: jax.Array, params: EnvParams, t: jax.Array) -> EnvState:
+    def _start(self, key: jax.Array, params: EnvParams, t: jax.Array, start_ranges: jax.Array) -> EnvState:
         w = params.world
         idx = jnp.where(params.random_starts, jax.random.randint(key, (), 0, w.num_starts), 0)
         pose = w.starts[idx]
@@ -121,14 +122,18 @@ class NavEnv:
             dist=jnp.linalg.norm(goal - pose[:2]),
             start_index=idx.astype(jnp.int32),
             t=t,
+            start_ranges=start_ranges,
         )
 
     # ------------------------------------------------------------------ API
 
     def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Start an episode. The scans at every start row are cast here, once per episode, so
+        that a reset inside the episode (learn mode) needs no second cast in `step`."""
         k_start, k_obs = jax.random.split(key)
-        state = self._start(k_start, params, jnp.int32(0))
-        return self.observe(k_obs, state, self.ranges(state.pose, params), params), state
+        start_ranges = jax.vmap(self.ranges, in_axes=(0, None))(params.world.starts, params)
+        state = self._start(k_start, params, jnp.int32(0), start_ranges)
+        return self.observe(k_obs, state, start_ranges[state.start_index], params), state
 
     def step(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
@@ -137,9 +142,15 @@ class NavEnv:
 
         `action` = (v / v_max, omega / omega_max), clipped to [0, 1] x [-1, 1].
         `terminated`: goal or collision (a learner cuts the bootstrap); `truncated`: the time limit
-        (a learner keeps it). In learn mode the obs after a terminal step is at the new start.
+        (a learner keeps it). In learn mode the obs after a terminal step is at the new start, and
+        `info["final_obs"]` is the true observation at the pose the robot reached (the `s'` of the
+        transition; equal to `obs` on every other step).
         info: `goal`, `collision` (bool), `pose` (after the move, before any reset),
-        `clearance` (m to the nearest obstacle, or the shortest beam with collision_test="lidar").
+        `clearance` (m to the nearest obstacle, or the shortest beam with collision_test="lidar"),
+        `final_obs`.
+
+        One lidar cast per step: at the pose reached. After a reset the start's scan comes from
+        `state.start_ranges`, cast once at `reset` (docs/decisions.md, "Terminal observations").
         """
         # Without noise the key only draws the start after a reset: no split (it costs here).
         k_act, k_obs, k_reset = jax.random.split(key, 3) if self.noise else (key, key, key)
@@ -155,25 +166,19 @@ class NavEnv:
         w = params.world
         goal = dist < params.goal_radius
         truncated = moved.t >= self.episode_length
+        ranges = self.ranges(pose, params)
         if self.collision_test == "exact":
             clearance = nearest_distance(w.segments, pose[:2], w.circles)
-            collision = clearance < params.collision_distance
-            terminated = goal | collision
-            if self.mode == "learn":  # reset before raycasting: one lidar call per step
-                moved = jax.tree.map(
-                    lambda r, s: jnp.where(terminated, r, s), self._start(k_reset, params, moved.t), moved
-                )
-            ranges = self.ranges(moved.pose, params)
-        else:  # the thesis's test needs the beams at the new pose, then a second cast after a reset
-            ranges = self.ranges(pose, params)
+        else:  # the thesis's test: the shortest beam at the new pose
             clearance = jnp.min(ranges)
-            collision = clearance < params.collision_distance
-            terminated = goal | collision
-            if self.mode == "learn":
-                moved = jax.tree.map(
-                    lambda r, s: jnp.where(terminated, r, s), self._start(k_reset, params, moved.t), moved
-                )
-                ranges = jnp.where(terminated, self.ranges(moved.pose, params), ranges)
+        collision = clearance < params.collision_distance
+        terminated = goal | collision
+        final_obs = self.observe(k_obs, moved, ranges, params)
+        obs = final_obs
+        if self.mode == "learn":
+            start = self._start(k_reset, params, moved.t, state.start_ranges)
+            moved = jax.tree.map(lambda r, s: jnp.where(terminated, r, s), start, moved)
+            obs = jnp.where(terminated, self.observe(k_obs, moved, state.start_ranges[start.start_index], params), obs)
         reward = (
             params.progress_scale * (state.dist - dist)
             + jnp.where(goal, params.reward_goal, 0.0)
@@ -181,8 +186,7 @@ class NavEnv:
         )
         if self.mode == "eval":
             truncated = truncated & ~terminated
-        obs = self.observe(k_obs, moved, ranges, params)
-        info = {"goal": goal, "collision": collision, "pose": pose, "clearance": clearance}
+        info = {"goal": goal, "collision": collision, "pose": pose, "clearance": clearance, "final_obs": final_obs}
         return obs, moved, reward, terminated, truncated, info
 
 

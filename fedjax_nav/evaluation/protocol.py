@@ -418,7 +418,7 @@ def load_run(run_dir: str | Path) -> RunAgents:
     from fedjax_nav.agents import ddpg
     from fedjax_nav.config import ConfigError, load_config
     from fedjax_nav.env import NavEnv as _Env
-    from fedjax_nav.training import methods
+    from fedjax_nav import methods
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

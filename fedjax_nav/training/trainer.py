@@ -15,52 +15,41 @@ The step and episode counters enter as scan inputs that are *not* batched over s
 would compute the update every step). A hyperparameter that is batched (a sweep over periods)
 turns its gate into a select, which is correct but slower.
 
-`TrainState` is one seed's state; `HParams` holds the traced hyperparameters (each leaf a
-scalar, or [S] when swept over seeds/grid points).
+`TrainState` is one seed's state; `HParams` (fedjax_nav.training.hparams) holds every traced
+config value, env constants included (each leaf a scalar, or [S] when swept over seeds/grid
+points): the env's `EnvParams` are built from it inside the program, so a sweep over
+`env.v_max` compiles once.
+
+Per-step values leave the step scan as outputs (`StepMetrics`) and are reduced per episode after
+it (`EPISODE_METRICS`): adding a metric is one field and one line in that table.
 """
 from __future__ import annotations
 
 from functools import partial
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from fedjax_nav import worlds
+from fedjax_nav import methods, worlds
 from fedjax_nav.agents import buffer as rb
 from fedjax_nav.agents import ddpg
 from fedjax_nav.config import Config
 from fedjax_nav.env import NavEnv, make_params
 from fedjax_nav.env.nav import EnvParams, EnvState
 from fedjax_nav.federated import aggregators as agg
-from fedjax_nav.training import methods
+from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
+
+ENV_PREFIX = "env."
 
 
-@struct.dataclass
-class HParams:
-    gamma: jax.Array
-    rho: jax.Array
-    lr: jax.Array
-    train_every: jax.Array
-    target_every: jax.Array
-    epsilon_start: jax.Array
-    epsilon_decay: jax.Array
-    tau: jax.Array
-    beta: jax.Array
-    fed_period: jax.Array
-    buffer_size: jax.Array
-
-
-def hparams_from_config(cfg: Config) -> HParams:
-    d, f = cfg.ddpg, cfg.fed
-    fl, it = jnp.float32, jnp.int32
-    return HParams(
-        gamma=fl(d.gamma), rho=fl(d.rho), lr=fl(d.lr), train_every=it(d.train_every),
-        target_every=it(d.target_every), epsilon_start=fl(d.epsilon_start),
-        epsilon_decay=fl(d.epsilon_decay), tau=fl(f.tau), beta=fl(f.beta), fed_period=it(f.period),
-        buffer_size=it(d.buffer_size),
-    )
+def env_params(world: worlds.World, hp: HParams, random_starts: bool) -> EnvParams:
+    """EnvParams for the robots' worlds [robots] with every traced `env.*` value taken from hp
+    (traced: a sweep over them does not recompile). Every traced env field is an EnvParams field."""
+    values = {k[len(ENV_PREFIX):]: v for k, v in hp.items() if k.startswith(ENV_PREFIX)}
+    return make_params(world, random_starts=random_starts, **values)
 
 
 @struct.dataclass
@@ -72,7 +61,7 @@ class TrainState:
     env_state: EnvState
     obs: jax.Array  # f32[robots, obs]
     epsilon: jax.Array  # f32[]
-    theta_w: dict  # GS: global (actor, critic) params without the client axis; else {}
+    agg_state: dict  # the aggregator's state (GS: its global model {actor, critic}, no client axis)
     reward_sum: jax.Array  # f32[robots] since the last federated step
     reward_steps: jax.Array  # f32[]
     key: jax.Array
@@ -87,11 +76,7 @@ class Trainer:
         e, d = cfg.env, cfg.ddpg
         self.env = NavEnv(e.num_beams, e.max_range, e.episode_length, mode="learn", collision_test=e.collision_test)
         self.world = worlds.load_many(e.worlds)
-        self.env_params: EnvParams = make_params(
-            self.world, random_starts=self.method.random_starts, dt=e.dt, v_max=e.v_max, omega_max=e.omega_max,
-            goal_radius=e.goal_radius, collision_distance=e.collision_distance, reward_goal=e.reward_goal,
-            reward_collision=e.reward_collision, progress_scale=e.progress_scale,
-        )
+        self.aggregator = agg.make(self.method.aggregator)
         self.num_robots = cfg.num_robots
         self.n_nets = 1 if self.method.shared_network else self.num_robots
         self.n_bufs = 1 if self.method.shared_buffer else self.num_robots
@@ -100,6 +85,16 @@ class Trainer:
         self.obs_size = self.env.obs_size
         self.T = e.episode_length
 
+    def env_params(self, hp: HParams) -> EnvParams:
+        return env_params(self.world, hp, self.method.random_starts)
+
+    def shared(self, agents: ddpg.AgentState) -> dict:
+        """What a client sends in a federated round: its networks (and targets if configured)."""
+        out = {"actor": agents.actor, "critic": agents.critic}
+        if self.cfg.fed.include_targets:
+            out.update(actor_targ=agents.actor_targ, critic_targ=agents.critic_targ)
+        return out
+
     # ------------------------------------------------------------------ init
 
     def init(self, key: jax.Array, hp: HParams) -> TrainState:
@@ -107,11 +102,10 @@ class Trainer:
         k_nets, k_env, k_run = jax.random.split(key, 3)
         agents = jax.vmap(lambda k: ddpg.init_agent(self.nets, k, self.obs_size))(jax.random.split(k_nets, self.n_nets))
         buffers = jax.vmap(lambda _: rb.init(self.cfg.buffer_rows, self.obs_size))(jnp.arange(self.n_bufs))
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), self.env_params)
-        theta_w = agg.init_global({"actor": agents.actor, "critic": agents.critic}) if self.method.aggregator == "gs" else {}
+        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), self.env_params(hp))
         return TrainState(
             agents=agents, buffers=buffers, env_state=env_state, obs=obs,
-            epsilon=jnp.asarray(hp.epsilon_start, jnp.float32), theta_w=theta_w,
+            epsilon=jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32), agg_state=self.aggregator.init(self.shared(agents)),
             reward_sum=jnp.zeros(self.num_robots), reward_steps=jnp.float32(0), key=k_run,
         )
 
@@ -140,14 +134,14 @@ class Trainer:
 
     def _capacity(self, hp: HParams) -> jax.Array:
         """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
-        return jnp.minimum(hp.buffer_size, self.cfg.buffer_rows)
+        return jnp.minimum(hp["ddpg.buffer_size"], self.cfg.buffer_rows)
 
     def _update(self, agents: ddpg.AgentState, buffers: rb.Transition, key, count, hp: HParams):
         """One gradient step for every network, each on its own batch."""
 
         def one(agent, buf, k):
             batch = rb.sample(buf, k, self.cfg.ddpg.batch_size, count, self._capacity(hp))
-            return ddpg.update(self.nets, agent, batch, hp.gamma, hp.lr)
+            return ddpg.update(self.nets, agent, batch, hp["ddpg.gamma"], hp["ddpg.lr"])
 
         keys = jax.random.split(key, self.n_nets)
         buf_axis = 0 if self.n_bufs == self.n_nets else None
@@ -155,37 +149,29 @@ class Trainer:
         return jax.vmap(one, in_axes=(0, buf_axis, 0))(agents, bufs, keys)
 
     def federated_step(self, state: TrainState, hp: HParams) -> TrainState:
-        kind = self.method.aggregator
+        """One round: every client sends `shared(agents)`; the aggregator's update comes back."""
         r = state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
-        a = state.agents
-        groups = [("actor", "critic")] + ([("actor_targ", "critic_targ")] if self.cfg.fed.include_targets else [])
-        theta_w = state.theta_w
-        for names in groups:
-            params = {"actor": getattr(a, names[0]), "critic": getattr(a, names[1])}
-            if kind == "gs" and names[0] == "actor_targ":
-                # targets follow the same global model as the nets (theta_w was updated just above)
-                new = jax.tree.map(lambda w, p: jnp.broadcast_to(w[None], p.shape), theta_w, params)
-            else:
-                new, tw = agg.aggregate(kind, params, r, hp.tau, hp.beta, theta_w)
-                theta_w = tw if names[0] == "actor" else theta_w
-            a = a.replace(**{names[0]: new["actor"], names[1]: new["critic"]})
-        return state.replace(agents=a, theta_w=theta_w, reward_sum=jnp.zeros_like(state.reward_sum),
-                             reward_steps=jnp.float32(0))
+        new, agg_state = self.aggregator.update(self.shared(state.agents), r, state.agg_state, hp,
+                                                jnp.ones(self.num_robots, bool))
+        return state.replace(agents=state.agents.replace(**new), agg_state=agg_state,
+                             reward_sum=jnp.zeros_like(state.reward_sum), reward_steps=jnp.float32(0))
 
-    def _step(self, hp: HParams, carry, g):
-        """One env step of every robot, with the periodic updates. g: global step (unbatched)."""
-        state, acc = carry
+    def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
+        """One env step of every robot, with the periodic updates. g: global step (unbatched).
+        Returns the new state and this step's `StepMetrics`."""
         key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
         actions = self._act(state, k_act)
         env_keys = jax.random.split(k_env, self.num_robots)
-        obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(env_keys, state.env_state, actions, self.env_params)
-        rows = rb.Transition(state.obs, actions, reward, obs2, term.astype(jnp.float32))
+        obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(env_keys, state.env_state, actions, env_params)
+        # s' is the true observation at the pose reached, also on a terminal step (obs2 is then
+        # the start of the next attempt); the (1 - D) mask cuts the bootstrap there.
+        rows = rb.Transition(state.obs, actions, reward, info["final_obs"], term.astype(jnp.float32))
         rows = jax.tree.map(lambda x: x.reshape(self.n_bufs, self.writes, *x.shape[1:]), rows)
         buffers = jax.vmap(rb.add, in_axes=(0, 0, None, None))(state.buffers, rows, g * self.writes, self._capacity(hp))
 
         count = (g + 1) * self.writes
         ready = count >= self.cfg.ddpg.batch_size
-        do_update = ready & ((g + 1) % hp.train_every == 0)
+        do_update = ready & ((g + 1) % hp["ddpg.train_every"] == 0)
         zeros = jnp.zeros(self.n_nets)
         agents, losses = jax.lax.cond(
             do_update,
@@ -193,55 +179,39 @@ class Trainer:
             lambda a: (a, {"critic_loss": zeros, "actor_loss": zeros, "q": zeros}),
             state.agents,
         )
-        do_target = ready & ((g + 1) % hp.target_every == 0)
-        agents = jax.lax.cond(do_target, lambda a: jax.vmap(ddpg.update_targets, in_axes=(0, None))(a, hp.rho),
+        do_target = ready & ((g + 1) % hp["ddpg.target_every"] == 0)
+        agents = jax.lax.cond(do_target, lambda a: jax.vmap(ddpg.update_targets, in_axes=(0, None))(a, hp["ddpg.rho"]),
                               lambda a: a, agents)
         state = state.replace(agents=agents, buffers=buffers, env_state=env_state, obs=obs2, key=key,
-                              epsilon=state.epsilon * hp.epsilon_decay,
+                              epsilon=state.epsilon * hp["ddpg.epsilon_decay"],
                               reward_sum=state.reward_sum + reward, reward_steps=state.reward_steps + 1.0)
         fed_now = jnp.bool_(False)
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
-            fed_now = (g + 1) % hp.fed_period == 0
+            fed_now = (g + 1) % hp["fed.period"] == 0
             state = jax.lax.cond(fed_now, lambda s: self.federated_step(s, hp), lambda s: s, state)
-        acc = {
-            "reward": acc["reward"] + reward,
-            "goals": acc["goals"] + info["goal"].astype(jnp.int32),
-            "collisions": acc["collisions"] + info["collision"].astype(jnp.int32),
-            "critic_loss": acc["critic_loss"] + losses["critic_loss"],
-            "actor_loss": acc["actor_loss"] + losses["actor_loss"],
-            "q": acc["q"] + losses["q"],
-            "updates": acc["updates"] + do_update.astype(jnp.int32),
-            "fed_events": acc["fed_events"] + fed_now.astype(jnp.int32),
-        }
-        return (state, acc), None
+        out = StepMetrics(reward=reward, goals=info["goal"].astype(jnp.int32),
+                          collisions=info["collision"].astype(jnp.int32), critic_loss=losses["critic_loss"],
+                          actor_loss=losses["actor_loss"], q=losses["q"], updates=do_update.astype(jnp.int32),
+                          fed_events=fed_now.astype(jnp.int32))
+        return state, out
 
     def episode(self, state: TrainState, hp: HParams, ep: jax.Array) -> tuple[TrainState, dict]:
         """One episode of T steps for one seed; ep (the episode index) must be unbatched."""
+        env_params = self.env_params(hp)
         key, k_reset = jax.random.split(state.key)
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), self.env_params)
+        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), env_params)
         state = state.replace(obs=obs, env_state=env_state, key=key)
-        n, k = self.num_robots, self.n_nets
-        acc = {"reward": jnp.zeros(n), "goals": jnp.zeros(n, jnp.int32), "collisions": jnp.zeros(n, jnp.int32),
-               "critic_loss": jnp.zeros(k), "actor_loss": jnp.zeros(k), "q": jnp.zeros(k),
-               "updates": jnp.int32(0), "fed_events": jnp.int32(0)}
         steps = ep * self.T + jnp.arange(self.T)
-        (state, acc), _ = jax.lax.scan(partial(self._step, hp), (state, acc), steps)
+        state, per_step = jax.lax.scan(partial(self._step, hp, env_params), state, steps)
+        fed_end = jnp.int32(0)
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
-            fed_now = (ep + 1) % hp.fed_period == 0
+            fed_now = (ep + 1) % hp["fed.period"] == 0
             state = jax.lax.cond(fed_now, lambda s: self.federated_step(s, hp), lambda s: s, state)
-            acc["fed_events"] = acc["fed_events"] + fed_now.astype(jnp.int32)
-        nupd = jnp.maximum(acc.pop("updates"), 1)
-        metrics = {
-            "reward": acc["reward"] / self.T,  # mean reward per step, per robot
-            "goals": acc["goals"],
-            "collisions": acc["collisions"],
-            "critic_loss": acc["critic_loss"] / nupd,  # per network
-            "actor_loss": acc["actor_loss"] / nupd,
-            "q": acc["q"] / nupd,
-            "fed_events": acc["fed_events"],
-            "epsilon": state.epsilon,
-            "params_finite": jax.vmap(_all_finite)((state.agents.actor, state.agents.critic)),  # [n_nets]
-        }
+            fed_end = fed_now.astype(jnp.int32)
+        metrics = {name: reduce(per_step) for name, reduce in EPISODE_METRICS.items()}
+        metrics["fed_events"] = metrics["fed_events"] + fed_end
+        metrics["epsilon"] = state.epsilon
+        metrics["params_finite"] = jax.vmap(_all_finite)((state.agents.actor, state.agents.critic))  # [n_nets]
         return state, metrics
 
     def chunk(self, states: TrainState, hp: HParams, first_episode: jax.Array, num_episodes: int):
@@ -297,6 +267,32 @@ def _all_finite(tree) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
 
 
-def hp_axes(hp: HParams):
-    """vmap in_axes for HParams: 0 for leaves with a batch axis, None for scalars."""
-    return jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp)
+@struct.dataclass
+class StepMetrics:
+    """What one step reports (leaves [robots] or [nets]; scalars for the run-wide flags). The
+    step scan stacks them to [T, ...]."""
+
+    reward: jax.Array  # f32[robots]
+    goals: jax.Array  # i32[robots]
+    collisions: jax.Array  # i32[robots]
+    critic_loss: jax.Array  # f32[nets], 0 on steps without a gradient step
+    actor_loss: jax.Array  # f32[nets]
+    q: jax.Array  # f32[nets] mean Q of the batch
+    updates: jax.Array  # i32[] 1 on a gradient step
+    fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
+
+
+def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:
+    return jnp.sum(x, 0) / jnp.maximum(jnp.sum(m.updates), 1)
+
+
+# Episode metric -> its reduction over the episode's [T, ...] step metrics.
+EPISODE_METRICS: dict[str, Callable[[StepMetrics], jax.Array]] = {
+    "reward": lambda m: jnp.sum(m.reward, 0) / m.reward.shape[0],  # mean reward per step, per robot
+    "goals": lambda m: jnp.sum(m.goals, 0),
+    "collisions": lambda m: jnp.sum(m.collisions, 0),
+    "critic_loss": lambda m: _per_update(m.critic_loss, m),  # mean over the episode's gradient steps
+    "actor_loss": lambda m: _per_update(m.actor_loss, m),
+    "q": lambda m: _per_update(m.q, m),
+    "fed_events": lambda m: jnp.sum(m.fed_events),
+}

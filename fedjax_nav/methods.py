@@ -1,5 +1,7 @@
-"""The methods as data (SCENARIO.md section 4): how many networks and buffers, which aggregator,
-which starts. The trainer reads these flags; there are no subclasses."""
+"""The thesis's methods as data (docs/decisions.md, "Methods"): how many networks and buffers,
+which aggregator (a name in `fedjax_nav.federated.aggregators.AGGREGATORS`), which starts. The
+trainer reads these flags; there are no subclasses. The config's `method` choices are this
+table's keys."""
 from __future__ import annotations
 
 from dataclasses import dataclass
