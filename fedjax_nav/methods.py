@@ -2,6 +2,7 @@
 which aggregator (a name in `fedjax_nav.federated.aggregators.AGGREGATORS`), which starts. The
 trainer reads these flags; there are no subclasses. The config's `method` choices are this
 table's keys."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,4 +1,5 @@
 """Benchmarks: same as `fedjax-nav bench`. Example: python scripts/bench.py all --record docs/benchmarks.md"""
+
 import sys
 
 from fedjax_nav.cli import main

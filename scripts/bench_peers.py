@@ -6,7 +6,7 @@
 
 (a) env stepping, 24 beams, one agent per env, random actions, one jitted lax.scan:
     JaxMARL's JaxNav (`step`, which always computes a full reset too, and `step_env`, which
-    skips it) against fedjax_nav's NavEnv (`fedjax_nav.bench.bench_env`, the thesis's rooms),
+    skips it) against fedjax_nav's NavEnv (`fedjax_nav.experiments.bench.bench_env`, the thesis's rooms),
     at batch 1 and 4096 -> agent-steps/s and ratios.
 (b) training on the same task (room train-0, one robot, 64x3 actor and critic, batch 512, one
     gradient step every 5 env steps, buffer 10k, gamma 0.9, lr 1e-3, hard target copies):
@@ -14,11 +14,12 @@
     (`fedjax_nav.env.gym_env.NavGymEnv`), timed over a fixed number of steps after warm-up and
     `learning_starts`, against fedjax_nav's trainer (IDDPG with one robot on train-0: one
     1024-step episode after compilation) and the thesis-scale 5-robot FLDDPG episode
-    (`fedjax_nav.bench.bench_train`) -> agent-steps/s, agent-updates/s and ratios.
+    (`fedjax_nav.experiments.bench.bench_train`) -> agent-steps/s, agent-updates/s and ratios.
 
 Everything is measured in this one process, so the ratios hold even when the shared machine's
 load drifts between runs (the load average is printed before and after).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,9 +31,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
 
-from fedjax_nav import bench  # noqa: E402
+from fedjax_nav.experiments import bench  # noqa: E402
 
 WORLD = "train-0"
 
@@ -80,8 +80,8 @@ def bench_sb3(steps: int, warm: int = 1000, learning_starts: int = 512) -> dict:
     import torch
     from stable_baselines3 import DDPG
 
-    from fedjax_nav.env.gym_env import NavGymEnv
     from fedjax_nav import methods
+    from fedjax_nav.env.gym_env import NavGymEnv
 
     env = NavGymEnv(WORLD, episode_length=1024, random_starts=methods.get("iddpg").random_starts)
     # the gym wrapper alone, random actions from Python: the floor under any Python-stepped learner
@@ -97,9 +97,20 @@ def bench_sb3(steps: int, warm: int = 1000, learning_starts: int = 512) -> dict:
     gym_sps = n / (time.perf_counter() - t0)
 
     model = DDPG(
-        "MlpPolicy", env, learning_rate=1e-3, buffer_size=10_000, learning_starts=learning_starts,
-        batch_size=512, tau=1.0, gamma=0.9, train_freq=5, gradient_steps=1,
-        policy_kwargs=dict(net_arch=dict(pi=[64, 64, 64], qf=[64, 64, 64])), device="cpu", seed=0, verbose=0,
+        "MlpPolicy",
+        env,
+        learning_rate=1e-3,
+        buffer_size=10_000,
+        learning_starts=learning_starts,
+        batch_size=512,
+        tau=1.0,
+        gamma=0.9,
+        train_freq=5,
+        gradient_steps=1,
+        policy_kwargs=dict(net_arch=dict(pi=[64, 64, 64], qf=[64, 64, 64])),
+        device="cpu",
+        seed=0,
+        verbose=0,
     )
     model.learn(total_timesteps=learning_starts + warm)  # warm-up: buffer filled, updates running
     u0 = model._n_updates
@@ -117,9 +128,17 @@ def bench_sb3(steps: int, warm: int = 1000, learning_starts: int = 512) -> dict:
     for _ in range(1000):
         model.predict(obs, deterministic=True)
     predict_s = (time.perf_counter() - t0) / 1000
-    return {"agent_steps_per_s": steps / dt, "agent_updates_per_s": updates / dt, "updates": updates,
-            "steps": steps, "seconds": dt, "gym_env_steps_per_s": gym_sps, "torch_threads": torch.get_num_threads(),
-            "update_s": train_s, "predict_s": predict_s}
+    return {
+        "agent_steps_per_s": steps / dt,
+        "agent_updates_per_s": updates / dt,
+        "updates": updates,
+        "steps": steps,
+        "seconds": dt,
+        "gym_env_steps_per_s": gym_sps,
+        "torch_threads": torch.get_num_threads(),
+        "update_s": train_s,
+        "predict_s": predict_s,
+    }
 
 
 N_UPDATES = 205  # gradient steps in one 1024-step episode at T_train = 5
@@ -135,8 +154,13 @@ def bench_jax_updates() -> float:
     agent = ddpg.init_agent(nets, jax.random.key(0), 28)
     n = 10_000
     k = jax.random.split(jax.random.key(1), 3)
-    rows = rb.Transition(jax.random.uniform(k[0], (n, 28)), jax.random.uniform(k[1], (n, 2)),
-                         jax.random.normal(k[2], (n,)), jax.random.uniform(k[0], (n, 28)), jnp.zeros(n))
+    rows = rb.Transition(
+        jax.random.uniform(k[0], (n, 28)),
+        jax.random.uniform(k[1], (n, 2)),
+        jax.random.normal(k[2], (n,)),
+        jax.random.uniform(k[0], (n, 28)),
+        jnp.zeros(n),
+    )
     buf = rb.add(rb.init(n, 28), rows, jnp.int32(0), jnp.int32(n))
 
     def many(agent, buf, key):
@@ -168,25 +192,31 @@ def main(argv=None) -> int:
     q = args.quick
     load_before = load()
     t_start = time.perf_counter()
-    rows = []  # (what, setting, value, unit-string)
 
     # (a) env stepping
     batches = (1, 64) if q else (1, 4096)
-    ours = {r["batch"]: r["agent_steps_per_s"]
-            for r in bench.bench_env(batches=batches, steps=20 if q else 200) if r["devices"] == 1}
+    ours = {
+        r["batch"]: r["agent_steps_per_s"]
+        for r in bench.bench_env(batches=batches, steps=20 if q else 200)
+        if r["devices"] == 1
+    }
     env_rows = []
     for b in batches:
         big = b >= 1024
         js = bench_jaxnav(b, steps=5 if q else (20 if big else 200), which="step")
         jse = bench_jaxnav(b, steps=5 if q else (50 if big else 200), which="step_env")
         env_rows.append((b, ours[b], js, jse))
-        print(f"env batch {b}: fedjax_nav {ours[b]:,.0f}, JaxNav step {js:,.0f}, step_env {jse:,.0f} agent-steps/s",
-              flush=True)
+        print(
+            f"env batch {b}: fedjax_nav {ours[b]:,.0f}, JaxNav step {js:,.0f}, step_env {jse:,.0f} agent-steps/s",
+            flush=True,
+        )
 
     # (b) training
     sb3 = bench_sb3(steps=200 if q else args.sb3_steps, warm=100 if q else 1000)
-    print(f"SB3 DDPG: {sb3['agent_steps_per_s']:,.0f} agent-steps/s, {sb3['agent_updates_per_s']:,.1f} updates/s",
-          flush=True)
+    print(
+        f"SB3 DDPG: {sb3['agent_steps_per_s']:,.0f} agent-steps/s, {sb3['agent_updates_per_s']:,.1f} updates/s",
+        flush=True,
+    )
     one = bench_fedjax_train("iddpg", [WORLD])
     print(f"fedjax_nav IDDPG 1 robot: {one['agent_steps_per_s']:,.0f} agent-steps/s", flush=True)
     five = bench_fedjax_train("flddpg", None)
@@ -197,18 +227,28 @@ def main(argv=None) -> int:
     lines = []
     for b, o, js, jse in env_rows:
         lines.append(f"| env, batch {b} | fedjax_nav NavEnv (thesis rooms) | {o:,.0f} agent-steps/s | |")
-        lines.append(f"| env, batch {b} | JaxNav `step` (with its reset) | {js:,.0f} agent-steps/s | **{o / js:,.1f}x** |")
-        lines.append(f"| env, batch {b} | JaxNav `step_env` (no reset) | {jse:,.0f} agent-steps/s | **{o / jse:,.1f}x** |")
-    lines.append(f"| gym wrapper alone | NavGymEnv, random actions from Python | {sb3['gym_env_steps_per_s']:,.0f} steps/s | |")
-    lines.append(f"| train, 1 robot | SB3 DDPG via NavGymEnv ({sb3['steps']} steps after warm-up, torch threads "
-                 f"{sb3['torch_threads']}) | {sb3['agent_steps_per_s']:,.0f} agent-steps/s, "
-                 f"{sb3['agent_updates_per_s']:,.1f} agent-updates/s | 1x |")
+        lines.append(
+            f"| env, batch {b} | JaxNav `step` (with its reset) | {js:,.0f} agent-steps/s | **{o / js:,.1f}x** |"
+        )
+        lines.append(
+            f"| env, batch {b} | JaxNav `step_env` (no reset) | {jse:,.0f} agent-steps/s | **{o / jse:,.1f}x** |"
+        )
+    lines.append(
+        f"| gym wrapper alone | NavGymEnv, random actions from Python | {sb3['gym_env_steps_per_s']:,.0f} steps/s | |"
+    )
+    lines.append(
+        f"| train, 1 robot | SB3 DDPG via NavGymEnv ({sb3['steps']} steps after warm-up, torch threads "
+        f"{sb3['torch_threads']}) | {sb3['agent_steps_per_s']:,.0f} agent-steps/s, "
+        f"{sb3['agent_updates_per_s']:,.1f} agent-updates/s | 1x |"
+    )
     for label, r in (("fedjax_nav IDDPG, 1 robot, train-0", one), ("fedjax_nav FLDDPG, 5 robots (thesis)", five)):
-        lines.append(f"| train, {r['robots']} robot(s) | {label}: one 1024-step episode after compile "
-                     f"({r['compile_s_incl_first_chunk']:.1f} s) | {r['agent_steps_per_s']:,.0f} agent-steps/s, "
-                     f"{r['agent_updates_per_s']:,.1f} agent-updates/s | "
-                     f"**{r['agent_steps_per_s'] / sb3['agent_steps_per_s']:,.1f}x** steps, "
-                     f"{r['agent_updates_per_s'] / sb3['agent_updates_per_s']:,.1f}x updates |")
+        lines.append(
+            f"| train, {r['robots']} robot(s) | {label}: one 1024-step episode after compile "
+            f"({r['compile_s_incl_first_chunk']:.1f} s) | {r['agent_steps_per_s']:,.0f} agent-steps/s, "
+            f"{r['agent_updates_per_s']:,.1f} agent-updates/s | "
+            f"**{r['agent_steps_per_s'] / sb3['agent_steps_per_s']:,.1f}x** steps, "
+            f"{r['agent_updates_per_s'] / sb3['agent_updates_per_s']:,.1f}x updates |"
+        )
     table = "| what | setting | result | ratio (fedjax_nav / peer) |\n|---|---|---|---|\n" + "\n".join(lines)
 
     # Where the time goes, per 5 env steps + 1 gradient step (one T_train cycle of one robot)
@@ -220,10 +260,12 @@ def main(argv=None) -> int:
     prof = [
         f"| SB3 DDPG | whole cycle (measured above) | {ms(sb3_cycle)} | 100% |",
         f"| SB3 DDPG | 1 gradient step alone (`model.train`, torch) | {ms(sb3_upd)} | {pct(sb3_upd, sb3_cycle)} |",
-        f"| SB3 DDPG | 5 env steps through NavGymEnv (jitted NavEnv + host copies) | {ms(sb3_env)} | {pct(sb3_env, sb3_cycle)} |",
+        f"| SB3 DDPG | 5 env steps through NavGymEnv (jitted NavEnv + host copies) | {ms(sb3_env)} | "
+        f"{pct(sb3_env, sb3_cycle)} |",
         f"| SB3 DDPG | 5 policy calls (`model.predict`) | {ms(sb3_pred)} | {pct(sb3_pred, sb3_cycle)} |",
         f"| SB3 DDPG | the rest (SB3's Python loop: buffer, callbacks, logging) | "
-        f"{ms(sb3_cycle - sb3_upd - sb3_env - sb3_pred)} | {pct(sb3_cycle - sb3_upd - sb3_env - sb3_pred, sb3_cycle)} |",
+        f"{ms(sb3_cycle - sb3_upd - sb3_env - sb3_pred)} | "
+        f"{pct(sb3_cycle - sb3_upd - sb3_env - sb3_pred, sb3_cycle)} |",
         f"| fedjax_nav IDDPG, 1 robot | whole cycle (measured above) | {ms(ours_cycle)} | 100% |",
         f"| fedjax_nav IDDPG, 1 robot | 1 gradient step alone (sample + update, jitted scan) | {ms(jax_update_s)} | "
         f"{pct(jax_update_s, ours_cycle)} |",
@@ -234,21 +276,26 @@ def main(argv=None) -> int:
         f"without a faster update) | "
         f"**{sb3_cycle / jax_update_s:.1f}x** | |",
     ]
-    prof_table = ("| who | part of one T_train cycle (5 env steps + 1 gradient step) | time | share |\n"
-                  "|---|---|---|---|\n" + "\n".join(prof))
+    prof_table = (
+        "| who | part of one T_train cycle (5 env steps + 1 gradient step) | time | share |\n"
+        "|---|---|---|---|\n" + "\n".join(prof)
+    )
     table += "\n\nWhere the time goes (same run):\n\n" + prof_table
     print(table)
     print(f"load average before {load_before}, after {load_after}; {time.perf_counter() - t_start:.0f} s")
 
     if args.record:
+        from importlib.metadata import version
+
         import gymnasium
         import jaxmarl
         import stable_baselines3
         import torch
-        from importlib.metadata import version
 
-        versions = (f"jaxmarl {version('jaxmarl')}, stable-baselines3 {stable_baselines3.__version__}, "
-                    f"torch {torch.__version__}, gymnasium {gymnasium.__version__}")
+        versions = (
+            f"jaxmarl {version('jaxmarl')}, stable-baselines3 {stable_baselines3.__version__}, "
+            f"torch {torch.__version__}, gymnasium {gymnasium.__version__}"
+        )
         del jaxmarl
         cmd = " ".join(["python", *sys.argv])
         with open(args.record, "a") as f:

@@ -5,6 +5,7 @@ and results/reproduction_table3.csv.
 
     python scripts/collect_reproduction.py runs/reproduce-thesis results
 """
+
 import json
 import shutil
 import sys
@@ -18,7 +19,10 @@ for name in info["experiments"]:
     src = report / "experiments" / name / "by_setting.csv"
     if src.exists() and src.stat().st_size > 1:
         written.append(shutil.copyfile(src, out / f"reproduction_{name}.csv"))
-for src, dst in (("eval_summary.csv", "reproduction_eval.csv"), ("table3_communication.csv", "reproduction_table3.csv")):
+for src, dst in (
+    ("eval_summary.csv", "reproduction_eval.csv"),
+    ("table3_communication.csv", "reproduction_table3.csv"),
+):
     if (report / src).exists() and (report / src).stat().st_size > 1:
         written.append(shutil.copyfile(report / src, out / dst))
 print("wrote", ", ".join(str(p) for p in written))

@@ -16,6 +16,7 @@ What is approximated (also in docs/worlds.md):
 - Start headings: the original code reset every robot with a quaternion that amounts to
   yaw = pi, whatever the launch file said; every start here has theta = pi.
 """
+
 from __future__ import annotations
 
 import json
@@ -46,7 +47,7 @@ def convert_objects(objs, cx, cy):
         if "z_min" in o and (o["z_max"] < LIDAR_Z or o["z_min"] > LIDAR_Z):
             continue  # wheels, casters: not in the lidar plane
         if kind == "box":
-            sx, sy = (PIONEER_SIZE if name.startswith("pioneer") else (o["size_x"], o["size_y"]))
+            sx, sy = PIONEER_SIZE if name.startswith("pioneer") else (o["size_x"], o["size_y"])
             boxes.append([_r(o["x"] - cx), _r(o["y"] - cy), _r(sx), _r(sy), _r(o["yaw"])])
         elif kind == "cylinder":
             circles.append([_r(o["x"] - cx), _r(o["y"] - cy), _r(o["radius"])])

@@ -10,6 +10,7 @@ starts); cases alternate for `--rounds` rounds, so that a shared machine's load 
 them alike. Per case: compile + first episode, then the best and the median of the following
 one-episode chunks (blocked one by one), as agent-steps/s (robots x seeds x steps / s).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,11 +27,14 @@ def measure(config: str, overrides: list[str], devices: int, shard: str, episode
     import jax
     import jax.numpy as jnp
 
-    from fedjax_nav import parallel
     from fedjax_nav.config import load_config
-    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+    from fedjax_nav.training import parallel
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
 
-    cfg = load_config(config, overrides + ["run.chunk_episodes=1", "run.checkpoint_every=0", f"run.episodes={episodes}"])
+    cfg = load_config(
+        config, overrides + ["run.chunk_episodes=1", "run.checkpoint_every=0", f"run.episodes={episodes}"]
+    )
     tr, hp = Trainer(cfg), hparams_from_config(cfg)
     mesh = parallel.make_mesh(devices, shard) if devices > 1 else None
     t = time.perf_counter()
@@ -44,9 +48,15 @@ def measure(config: str, overrides: list[str], devices: int, shard: str, episode
         t = time.perf_counter()
     steps = cfg.num_robots * cfg.run.seeds * cfg.env.episode_length
     rest = times[1:]
-    return {"case": f"{devices}:{shard}" if mesh else "1", "first_s": times[0], "best_s": min(rest),
-            "median_s": statistics.median(rest), "best_steps_per_s": steps / min(rest),
-            "median_steps_per_s": steps / statistics.median(rest), "backend": jax.default_backend()}
+    return {
+        "case": f"{devices}:{shard}" if mesh else "1",
+        "first_s": times[0],
+        "best_s": min(rest),
+        "median_s": statistics.median(rest),
+        "best_steps_per_s": steps / min(rest),
+        "median_steps_per_s": steps / statistics.median(rest),
+        "backend": jax.default_backend(),
+    }
 
 
 def main() -> int:
@@ -69,8 +79,19 @@ def main() -> int:
         for case in args.cases:
             n = int(case.partition(":")[0])
             env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}")
-            cmd = [sys.executable, __file__, "--config", args.config, "--seeds", str(args.seeds), "--episodes",
-                   str(args.episodes), "--worker", case, *sum((["--set", s] for s in args.set), [])]
+            cmd = [
+                sys.executable,
+                __file__,
+                "--config",
+                args.config,
+                "--seeds",
+                str(args.seeds),
+                "--episodes",
+                str(args.episodes),
+                "--worker",
+                case,
+                *sum((["--set", s] for s in args.set), []),
+            ]
             res = subprocess.run(cmd, env=env, capture_output=True, text=True)
             if res.returncode:
                 print(res.stderr[-2000:], file=sys.stderr)
@@ -78,8 +99,11 @@ def main() -> int:
             row = json.loads([x for x in res.stdout.splitlines() if x.startswith("RESULT ")][-1][7:])
             row["load"] = os.getloadavg()[0]
             rows.append(row)
-            print(f"| {row['case']} | {row['first_s']:.1f} | {row['best_s']:.2f} | {row['median_s']:.2f} | "
-                  f"{row['best_steps_per_s']:,.0f} | {row['median_steps_per_s']:,.0f} | {row['load']:.1f} |", flush=True)
+            print(
+                f"| {row['case']} | {row['first_s']:.1f} | {row['best_s']:.2f} | {row['median_s']:.2f} | "
+                f"{row['best_steps_per_s']:,.0f} | {row['median_steps_per_s']:,.0f} | {row['load']:.1f} |",
+                flush=True,
+            )
     return 0
 
 

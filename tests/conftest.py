@@ -4,6 +4,7 @@ Every jitted function lives in a session-scoped fixture so that it compiles once
 run; hand-built worlds are padded to one common shape (`TINY_SHAPE`) so that every env test of
 one NavEnv configuration reuses one compiled `step`.
 """
+
 import json
 import os
 
@@ -28,15 +29,25 @@ EPISODE_LENGTH = 4
 # Playgrounds of the batch tests, small (compile time grows with the number of obstacles) and
 # different in every padded dimension: segments, circles, starts, goals, size.
 BATCH_WORLD_SPECS = {
-    "room-a.json": {"size": [3.0, 3.0], "circles": [[0.5, 0.5, 0.3]],
-                    "starts": [[-1.0, -1.0, 0.0], [1.0, -1.0, 1.5708], [-1.0, 1.0, -1.5708]],
-                    "goals": [[1.0, 1.0]]},
-    "room-b.yaml": {"size": [5.0, 2.5], "boxes": [[0.0, 0.0, 0.6, 0.6, 0.3]],
-                    "starts": [[-2.0, 0.0, 0.0]], "goals": [[2.0, 0.5]]},
-    "room-c.json": {"size": [4.0, 4.0], "segments": [[-1.0, 1.0, 1.0, 1.5]],
-                    "circles": [[1.0, -1.0, 0.4], [-1.0, -0.5, 0.25]],
-                    "starts": [[0.0, -1.5, 1.5708], [1.5, 0.0, 3.1416]],
-                    "goals": [[-1.5, 1.5], [1.5, 1.5]]},
+    "room-a.json": {
+        "size": [3.0, 3.0],
+        "circles": [[0.5, 0.5, 0.3]],
+        "starts": [[-1.0, -1.0, 0.0], [1.0, -1.0, 1.5708], [-1.0, 1.0, -1.5708]],
+        "goals": [[1.0, 1.0]],
+    },
+    "room-b.yaml": {
+        "size": [5.0, 2.5],
+        "boxes": [[0.0, 0.0, 0.6, 0.6, 0.3]],
+        "starts": [[-2.0, 0.0, 0.0]],
+        "goals": [[2.0, 0.5]],
+    },
+    "room-c.json": {
+        "size": [4.0, 4.0],
+        "segments": [[-1.0, 1.0, 1.0, 1.5]],
+        "circles": [[1.0, -1.0, 0.4], [-1.0, -0.5, 0.25]],
+        "starts": [[0.0, -1.5, 1.5708], [1.5, 0.0, 3.1416]],
+        "goals": [[-1.5, 1.5], [1.5, 1.5]],
+    },
 }
 ROLLOUT_STEPS = 30
 
@@ -144,12 +155,18 @@ def batch_setup(tmp_path_factory):
     overrides = dict(v_max=2.0, random_starts=True)
     params = make_params(stacked, **overrides)
     rng = np.random.default_rng(7)
-    actions = np.stack(
-        [rng.uniform([0.8, -0.5], [1.0, 0.5], size=(ROLLOUT_STEPS, 2)) for _ in range(n)]
-    ).astype(np.float32)
+    actions = np.stack([rng.uniform([0.8, -0.5], [1.0, 0.5], size=(ROLLOUT_STEPS, 2)) for _ in range(n)]).astype(
+        np.float32
+    )
     keys = jax.random.split(jax.random.key(42), n)
-    return {"names": names, "stacked": stacked, "params": params, "actions": jnp.asarray(actions), "keys": keys,
-            "overrides": overrides}
+    return {
+        "names": names,
+        "stacked": stacked,
+        "params": params,
+        "actions": jnp.asarray(actions),
+        "keys": keys,
+        "overrides": overrides,
+    }
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,5 @@
 """The brax adapter (fedjax_nav.env.brax_env) and the jax>=0.10 shim for brax's trainers."""
+
 from __future__ import annotations
 
 import functools
@@ -266,9 +267,7 @@ def test_brax_training_wrappers_and_auto_reset():
 
 
 def test_eval_wrapper_counts_goal_metric():
-    env = brax_wrappers.EvalWrapper(
-        brax_wrappers.wrap(BraxNavEnv(room(), playground=0, v_max=1.0), episode_length=30)
-    )
+    env = brax_wrappers.EvalWrapper(brax_wrappers.wrap(BraxNavEnv(room(), playground=0, v_max=1.0), episode_length=30))
     s = env.reset(jax.random.split(jax.random.PRNGKey(0), 2))
     s = jax.jit(lambda s: jax.lax.fori_loop(0, 25, lambda i, s: env.step(s, jnp.tile(FORWARD, (2, 1))), s))(s)
     em = s.info["eval_metrics"]
@@ -295,9 +294,18 @@ def test_ppo_train_runs():
     )
     t0, c0 = time.perf_counter(), time.process_time()
     make_policy, params, metrics = ppo.train(
-        env, num_timesteps=4096, episode_length=128, num_envs=8, batch_size=8, num_minibatches=4,
-        unroll_length=16, num_updates_per_batch=2, num_evals=1, num_eval_envs=4,
-        network_factory=net, seed=0,
+        env,
+        num_timesteps=4096,
+        episode_length=128,
+        num_envs=8,
+        batch_size=8,
+        num_minibatches=4,
+        unroll_length=16,
+        num_updates_per_batch=2,
+        num_evals=1,
+        num_eval_envs=4,
+        network_factory=net,
+        seed=0,
     )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     print(f"\nppo.train 4096 env steps: {wall:.1f} s wall, {cpu:.1f} s CPU")
@@ -319,9 +327,18 @@ def test_sac_train_runs():
     net = functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(16, 16))
     t0, c0 = time.perf_counter(), time.process_time()
     make_policy, params, metrics = sac.train(
-        env, num_timesteps=4096, episode_length=128, num_envs=8, batch_size=64,
-        min_replay_size=256, max_replay_size=4096, grad_updates_per_step=1, num_evals=1,
-        num_eval_envs=4, network_factory=net, seed=0,
+        env,
+        num_timesteps=4096,
+        episode_length=128,
+        num_envs=8,
+        batch_size=64,
+        min_replay_size=256,
+        max_replay_size=4096,
+        grad_updates_per_step=1,
+        num_evals=1,
+        num_eval_envs=4,
+        network_factory=net,
+        seed=0,
     )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     print(f"\nsac.train 4096 env steps: {wall:.1f} s wall, {cpu:.1f} s CPU")

@@ -10,6 +10,7 @@ Every subprocess pays the jax import and, without a cache, the compilation of th
 share one persistent compilation cache (JAX_COMPILATION_CACHE_DIR, a temporary folder unless one
 is already set), so only the first compiles.
 """
+
 import json
 import os
 import re
@@ -28,9 +29,10 @@ import pytest
 import yaml
 
 from fedjax_nav import cli
-from fedjax_nav.checkpoint import Checkpointer
 from fedjax_nav.config import load_config
-from fedjax_nav.training.run import DivergenceError, atomic_write, train
+from fedjax_nav.rundir import atomic_write
+from fedjax_nav.training.checkpoint import Checkpointer, CheckpointError
+from fedjax_nav.training.run import DivergenceError, train
 from fedjax_nav.training.trainer import Trainer, hparams_from_config
 
 EPISODES = 16
@@ -40,8 +42,7 @@ TINY = {
     "method": "iddpg",
     "env": {"worlds": ["train-0", "train-2"], "episode_length": 16},
     "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
-    "run": {"episodes": EPISODES, "seeds": SEEDS, "chunk_episodes": 1, "checkpoint_every": 2,
-            "keep_checkpoints": 3},
+    "run": {"episodes": EPISODES, "seeds": SEEDS, "chunk_episodes": 1, "checkpoint_every": 2, "keep_checkpoints": 3},
 }
 TIMEOUT = 300  # s, per subprocess (a loaded 2-core machine)
 
@@ -89,8 +90,9 @@ def check_csv(path: Path) -> int:
 def start_until_checkpoint(env, out: Path, *args) -> subprocess.Popen:
     """Start `fedjax-nav train` and return once a checkpoint exists, the process still running.
     Reads metrics.csv on every poll (atomic writes: never half-written)."""
-    proc = subprocess.Popen(cmd("train", *args, "--quiet"), env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cmd("train", *args, "--quiet"), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     deadline = time.time() + TIMEOUT
     while not steps(out):
         if proc.poll() is not None or time.time() > deadline:
@@ -237,26 +239,41 @@ def test_unknown_config_key(tmp_path, capfd):
 
 def test_wrong_type(tmp_path, capfd):
     path = write_cfg(tmp_path, ddpg={"batch_size": "eight"})
-    cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.batch_size",
-              "expected an integer")
+    cli_error(
+        capfd,
+        ["train", "--config", path, "--out", tmp_path / "run"],
+        str(path),
+        "ddpg.batch_size",
+        "expected an integer",
+    )
 
 
 def test_out_of_range_value(tmp_path, capfd):
     path = write_cfg(tmp_path, ddpg={"gamma": 1.5})
-    cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.gamma",
-              "out of range", "allowed [0.0, 1.0]")
+    cli_error(
+        capfd,
+        ["train", "--config", path, "--out", tmp_path / "run"],
+        str(path),
+        "ddpg.gamma",
+        "out of range",
+        "allowed [0.0, 1.0]",
+    )
 
 
 def test_buffer_smaller_than_batch(tmp_path, capfd):
     path = write_cfg(tmp_path, ddpg={"buffer_size": 4, "batch_size": 8})
-    cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.buffer_size",
-              "ddpg.batch_size")
+    cli_error(
+        capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.buffer_size", "ddpg.batch_size"
+    )
 
 
-@pytest.mark.parametrize("sections, fields", [
-    ({"method": "flddpg", "fed": {"period": EPISODES + 1}}, ("fed.period", "run.episodes")),
-    ({"run": {"chunk_episodes": 2, "checkpoint_every": 3}}, ("run.checkpoint_every", "run.chunk_episodes")),
-])
+@pytest.mark.parametrize(
+    "sections, fields",
+    [
+        ({"method": "flddpg", "fed": {"period": EPISODES + 1}}, ("fed.period", "run.episodes")),
+        ({"run": {"chunk_episodes": 2, "checkpoint_every": 3}}, ("run.checkpoint_every", "run.chunk_episodes")),
+    ],
+)
 def test_inconsistent_periods(tmp_path, capfd, sections, fields):
     path = write_cfg(tmp_path, **sections)
     cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), *fields)
@@ -273,8 +290,13 @@ def test_resume_with_a_changed_config_lists_the_fields(reference, tmp_path, capf
     out = tmp_path / "run"
     out.mkdir()
     shutil.copy(reference / "config.yaml", out / "config.yaml")
-    line = cli_error(capfd, ["train", "--resume", out, "--set", "ddpg.hidden=32", "--set", "ddpg.gamma=0.5"],
-                     str(out / "config.yaml"), "ddpg.hidden", "ddpg.gamma")
+    line = cli_error(
+        capfd,
+        ["train", "--resume", out, "--set", "ddpg.hidden=32", "--set", "ddpg.gamma=0.5"],
+        str(out / "config.yaml"),
+        "ddpg.hidden",
+        "ddpg.gamma",
+    )
     assert "run.episodes" not in line
 
 
@@ -305,14 +327,25 @@ def test_corrupted_checkpoint_is_detected(reference, env, tmp_path, damage):
 
 
 def test_incompatible_checkpoint_names_the_path_and_a_field(reference, env, tmp_path):
-    """A checkpoint of other network sizes (config.yaml edited after training)."""
+    """A checkpoint of other network sizes (config.yaml edited after training): `--resume` stops at
+    the config fingerprinted in the checkpoint; a restore into other shapes names the field."""
     out = tmp_path / "run"
     shutil.copytree(reference, out)
     data = yaml.safe_load((out / "config.yaml").read_text())
     data["ddpg"]["hidden"] = 32
     (out / "config.yaml").write_text(yaml.safe_dump(data))
     r = run_cli(env, "train", "--resume", out, "--quiet")
-    line = expect_error(r.returncode, r.stderr, str(out / "checkpoints" / "16"), "field", "shape")
+    expect_error(r.returncode, r.stderr, str(out / "checkpoints" / "16"), "ddpg.hidden", "differs")
+    cfg = load_config(out / "config.yaml")
+    template = Trainer(cfg).init_seeds(jnp.arange(SEEDS), hparams_from_config(cfg))
+    ck = Checkpointer(out)
+    try:
+        with pytest.raises(CheckpointError) as info:
+            ck.restore(template)
+    finally:
+        ck.close()
+    line = str(info.value)
+    assert str(out / "checkpoints" / "16") in line and "field" in line, line
     assert re.search(r"has shape \[[0-9, ]*16\], the config needs \[[0-9, ]*32\]", line), line
 
 
@@ -321,8 +354,19 @@ def test_incompatible_checkpoint_names_the_path_and_a_field(reference, env, tmp_
 
 def test_injected_nan_stops_the_run_and_keeps_the_last_good_checkpoint(env, cfg_file, tmp_path):
     out = tmp_path / "run"
-    r = run_cli(env, "train", "--config", cfg_file, "--out", out, "--quiet", "--set", "run.episodes=2",
-                "--set", "run.checkpoint_every=1")
+    r = run_cli(
+        env,
+        "train",
+        "--config",
+        cfg_file,
+        "--out",
+        out,
+        "--quiet",
+        "--set",
+        "run.episodes=2",
+        "--set",
+        "run.checkpoint_every=1",
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert steps(out) == [1, 2]
     good = dict(np.load(out / "params.npz"))
@@ -331,7 +375,7 @@ def test_injected_nan_stops_the_run_and_keeps_the_last_good_checkpoint(env, cfg_
     cfg = load_config(out / "config.yaml", ["run.episodes=4"])
     nan_hp = hparams_from_config(cfg) | {"ddpg.lr": jnp.float32(jnp.nan)}
     with pytest.raises(DivergenceError) as info:
-        train(cfg, out, progress=False, hp=nan_hp, resume=True)
+        train(cfg, out, progress=False, hp=nan_hp, resume=True, allow_config_change=True)
     msg = str(info.value)
     assert "NaN/Inf" in msg and "episode 2," in msg and "seed 0," in msg and "robot 0" in msg, msg
 

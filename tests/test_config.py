@@ -1,5 +1,6 @@
 """Config: validation (each error names its key), overrides, round trips, the shipped presets
-against Table 2 of SCENARIO.md, and the CLI's exit code 2 on a bad config."""
+against the thesis's Table 2 (docs/reproduction.md), and the CLI's exit code 2 on a bad config."""
+
 from pathlib import Path
 
 import pytest
@@ -32,28 +33,31 @@ def test_the_shipped_configs_are_all_there():
 # ----------------------------------------------------------------------------- rejections
 
 
-@pytest.mark.parametrize("data, key, what", [
-    ({"ddpg": {"gama": 0.9}}, "ddpg.gama", "unknown key"),
-    ({"ddpgs": {"gamma": 0.9}}, "ddpgs", "unknown key"),
-    ({"env": {"worlds": ["train-0"], "dt_s": 0.1}}, "env.dt_s", "unknown key"),
-    ({"ddpg": {"batch_size": "big"}}, "ddpg.batch_size", "integer"),
-    ({"ddpg": {"batch_size": 8.5}}, "ddpg.batch_size", "integer"),
-    ({"ddpg": {"batch_size": True}}, "ddpg.batch_size", "integer"),
-    ({"ddpg": {"gamma": "0.9"}}, "ddpg.gamma", "number"),
-    ({"ddpg": {"gamma": float("nan")}}, "ddpg.gamma", "finite"),
-    ({"fed": {"include_targets": 1}}, "fed.include_targets", "true or false"),
-    ({"env": {"worlds": "train-0"}}, "env.worlds", "list"),
-    ({"env": {"worlds": []}}, "env.worlds", "list"),
-    ({"method": 3}, "method", "string"),
-    ({"method": "ppo"}, "method", "not one of"),
-    ({"env": {"collision_test": "sonar"}}, "env.collision_test", "not one of"),
-    ({"ddpg": {"gamma": 1.5}}, "ddpg.gamma", "out of range"),
-    ({"ddpg": {"rho": -0.1}}, "ddpg.rho", "out of range"),
-    ({"fed": {"tau": 2}}, "fed.tau", "out of range"),
-    ({"env": {"episode_length": 0}}, "env.episode_length", "out of range"),
-    ({"run": {"seeds": 0}}, "run.seeds", "out of range"),
-    ({"ddpg": "fast"}, "ddpg", "mapping"),
-])
+@pytest.mark.parametrize(
+    "data, key, what",
+    [
+        ({"ddpg": {"gama": 0.9}}, "ddpg.gama", "unknown key"),
+        ({"ddpgs": {"gamma": 0.9}}, "ddpgs", "unknown key"),
+        ({"env": {"worlds": ["train-0"], "dt_s": 0.1}}, "env.dt_s", "unknown key"),
+        ({"ddpg": {"batch_size": "big"}}, "ddpg.batch_size", "integer"),
+        ({"ddpg": {"batch_size": 8.5}}, "ddpg.batch_size", "integer"),
+        ({"ddpg": {"batch_size": True}}, "ddpg.batch_size", "integer"),
+        ({"ddpg": {"gamma": "0.9"}}, "ddpg.gamma", "number"),
+        ({"ddpg": {"gamma": float("nan")}}, "ddpg.gamma", "finite"),
+        ({"fed": {"include_targets": 1}}, "fed.include_targets", "true or false"),
+        ({"env": {"worlds": "train-0"}}, "env.worlds", "list"),
+        ({"env": {"worlds": []}}, "env.worlds", "list"),
+        ({"method": 3}, "method", "string"),
+        ({"method": "ppo"}, "method", "not one of"),
+        ({"env": {"collision_test": "sonar"}}, "env.collision_test", "not one of"),
+        ({"ddpg": {"gamma": 1.5}}, "ddpg.gamma", "out of range"),
+        ({"ddpg": {"rho": -0.1}}, "ddpg.rho", "out of range"),
+        ({"fed": {"tau": 2}}, "fed.tau", "out of range"),
+        ({"env": {"episode_length": 0}}, "env.episode_length", "out of range"),
+        ({"run": {"seeds": 0}}, "run.seeds", "out of range"),
+        ({"ddpg": "fast"}, "ddpg", "mapping"),
+    ],
+)
 def test_invalid_values_are_rejected_naming_the_key(data, key, what):
     with pytest.raises(ConfigError) as e:
         from_dict(data, "bad.yaml")
@@ -61,15 +65,27 @@ def test_invalid_values_are_rejected_naming_the_key(data, key, what):
     assert "bad.yaml" in msg and key in msg and what in msg, msg
 
 
-@pytest.mark.parametrize("data, keys", [
-    ({"ddpg": {"buffer_size": 64, "batch_size": 128}}, ["ddpg.buffer_size", "ddpg.batch_size"]),
-    ({"ddpg": {"buffer_size": 64, "batch_size": 8, "buffer_alloc": 32}}, ["ddpg.buffer_alloc", "ddpg.buffer_size"]),
-    ({"fed": {"period": 10}, "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period", "run.episodes"]),
-    ({"fed": {"period_unit": "steps", "period": 100}, "env": {"episode_length": 16},
-      "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period"]),
-    ({"run": {"episodes": 10, "chunk_episodes": 3}}, ["run.episodes", "run.chunk_episodes"]),
-    ({"run": {"episodes": 10, "chunk_episodes": 5, "checkpoint_every": 7}}, ["run.checkpoint_every", "run.chunk_episodes"]),
-])
+@pytest.mark.parametrize(
+    "data, keys",
+    [
+        ({"ddpg": {"buffer_size": 64, "batch_size": 128}}, ["ddpg.buffer_size", "ddpg.batch_size"]),
+        ({"ddpg": {"buffer_size": 64, "batch_size": 8, "buffer_alloc": 32}}, ["ddpg.buffer_alloc", "ddpg.buffer_size"]),
+        ({"fed": {"period": 10}, "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period", "run.episodes"]),
+        (
+            {
+                "fed": {"period_unit": "steps", "period": 100},
+                "env": {"episode_length": 16},
+                "run": {"episodes": 4, "chunk_episodes": 1},
+            },
+            ["fed.period"],
+        ),
+        ({"run": {"episodes": 10, "chunk_episodes": 3}}, ["run.episodes", "run.chunk_episodes"]),
+        (
+            {"run": {"episodes": 10, "chunk_episodes": 5, "checkpoint_every": 7}},
+            ["run.checkpoint_every", "run.chunk_episodes"],
+        ),
+    ],
+)
 def test_inconsistent_fields_are_rejected_naming_them(data, keys):
     with pytest.raises(ConfigError) as e:
         from_dict(data, "bad.yaml")
@@ -81,12 +97,16 @@ def test_inconsistent_fields_are_rejected_naming_them(data, keys):
 def test_the_federated_period_does_not_constrain_methods_without_a_federated_step(method):
     # `--episodes 1` with the thesis presets (E_update = 2) is a smoke run, not an error, when no
     # federated step exists
-    cfg = load_config(ROOT / "configs" / "thesis" / f"{method}.yaml", ["run.episodes=1", "run.chunk_episodes=1",
-                                                                    "run.checkpoint_every=0"])
+    cfg = load_config(
+        ROOT / "configs" / "thesis" / f"{method}.yaml",
+        ["run.episodes=1", "run.chunk_episodes=1", "run.checkpoint_every=0"],
+    )
     assert cfg.run.episodes == 1 and cfg.fed.period == 2
     with pytest.raises(ConfigError, match="fed.period"):
-        load_config(ROOT / "configs" / "thesis" / "flddpg.yaml", ["run.episodes=1", "run.chunk_episodes=1",
-                                                                  "run.checkpoint_every=0"])
+        load_config(
+            ROOT / "configs" / "thesis" / "flddpg.yaml",
+            ["run.episodes=1", "run.chunk_episodes=1", "run.checkpoint_every=0"],
+        )
 
 
 def test_missing_and_malformed_files(tmp_path):
@@ -112,8 +132,10 @@ def test_cli_train_with_a_bad_config_returns_2_and_names_the_key(tmp_path, capsy
     # a bad --set is reported the same way
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump({"method": "iddpg"}))
-    assert cli.main(["train", "--config", str(good), "--set", "ddpg.gamma=2", "--quiet",
-                     "--out", str(tmp_path / "run")]) == 2
+    assert (
+        cli.main(["train", "--config", str(good), "--set", "ddpg.gamma=2", "--quiet", "--out", str(tmp_path / "run")])
+        == 2
+    )
     assert "ddpg.gamma" in capsys.readouterr().err
 
 
@@ -121,14 +143,23 @@ def test_cli_train_with_a_bad_config_returns_2_and_names_the_key(tmp_path, capsy
 
 
 def test_set_overrides_parse_yaml_values_and_validate():
-    cfg = load_config(PAPER, ["ddpg.gamma=0.99", "env.worlds=[train-0, eval]", "fed.include_targets=true",
-                              "method=gsddpg", "ddpg.batch_size=64"])
+    cfg = load_config(
+        PAPER,
+        [
+            "ddpg.gamma=0.99",
+            "env.worlds=[train-0, eval]",
+            "fed.include_targets=true",
+            "method=gsddpg",
+            "ddpg.batch_size=64",
+        ],
+    )
     assert cfg.ddpg.gamma == 0.99 and isinstance(cfg.ddpg.gamma, float)
     assert cfg.env.worlds == ("train-0", "eval") and cfg.num_robots == 2
     assert cfg.fed.include_targets is True and cfg.method == "gsddpg" and cfg.ddpg.batch_size == 64
     base = load_config(PAPER)
-    assert sorted(diff(base, cfg)) == sorted(["method", "env.worlds", "ddpg.gamma", "ddpg.batch_size",
-                                              "fed.include_targets"])
+    assert sorted(diff(base, cfg)) == sorted(
+        ["method", "env.worlds", "ddpg.gamma", "ddpg.batch_size", "fed.include_targets"]
+    )
     with pytest.raises(ConfigError, match="key=value"):
         load_config(PAPER, ["ddpg.gamma"])
     with pytest.raises(ConfigError, match="unknown key 'optim.lr'"):
@@ -158,15 +189,27 @@ def test_round_trip_to_dict_from_dict_and_save_load(path, tmp_path):
     assert load_config(tmp_path / "c.yaml") == cfg
     # the saved file is plain YAML with every section and field (one to one with the dataclasses)
     saved = yaml.safe_load((tmp_path / "c.yaml").read_text())
-    assert set(saved) == {"method", "env", "ddpg", "fed", "run"}
+    assert set(saved) == {"method", "env", "ddpg", "fed", "run", "robot"}
     assert set(saved["ddpg"]) == set(to_dict(Config())["ddpg"])
 
 
 def test_defaults_round_trip_and_traced_fields():
+    """Every env/ddpg/fed field is either traced or documented as static, never both: the
+    `traced=True` metadata is the one declaration (tests/test_sweep.py checks that the trained
+    program reads every traced field)."""
+    from dataclasses import fields
+
+    from fedjax_nav.config import SECTIONS
+
     assert from_dict({}) == Config() == load_config(None)
-    t = traced_fields()
-    assert {"ddpg.gamma", "ddpg.rho", "ddpg.lr", "fed.tau", "fed.beta", "fed.period", "ddpg.buffer_size"} <= set(t)
-    assert "ddpg.hidden" not in t and "ddpg.batch_size" not in t and "env.episode_length" not in t
+    t = set(traced_fields())
+    for section in ("env", "ddpg", "fed"):
+        for f in fields(SECTIONS[section]):
+            name = f"{section}.{f.name}"
+            static = "(static" in f.metadata["doc"]
+            assert static != (name in t), f"{name}: traced={name in t} but doc says {f.metadata['doc']!r}"
+    assert not {n for n in t if n.startswith("run.")}  # run fields are bookkeeping, never in the program
+    assert {"env.v_max", "env.collision_distance", "ddpg.buffer_size", "fed.period"} <= t
 
 
 # ----------------------------------------------------------------------------- presets (Table 2)

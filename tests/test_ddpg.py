@@ -7,6 +7,7 @@ Probe problems (one state, obs = ones):
 - discounted: reward 1, done 0, gamma 0.5, targets copied every step (rho = 1): Q = 1 / (1 -
   gamma) = 2 for every (s, a).
 """
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -91,7 +92,9 @@ def test_discounted_probe_q_is_one_over_one_minus_gamma(nets, train_probe):
     q = np.asarray(nets.critic.apply(agent.critic, jnp.ones((256, OBS)), a))
     np.testing.assert_allclose(q, 2.0, atol=0.1)
     # The targets were copied at the last step (rho = 1): they equal the online networks.
-    for t, p in zip(jax.tree.leaves((agent.actor_targ, agent.critic_targ)), jax.tree.leaves((agent.actor, agent.critic))):
+    for t, p in zip(
+        jax.tree.leaves((agent.actor_targ, agent.critic_targ)), jax.tree.leaves((agent.actor, agent.critic))
+    ):
         np.testing.assert_array_equal(np.asarray(t), np.asarray(p))
 
 
@@ -105,13 +108,18 @@ def test_update_targets_against_numpy(nets, rho):
     agent = a.replace(actor_targ=b.actor, critic_targ=b.critic)  # targets differ from the nets
     out = ddpg.update_targets(agent, jnp.float32(rho))
     for name, net in (("actor_targ", "actor"), ("critic_targ", "critic")):
-        for t_new, t_old, p in zip(jax.tree.leaves(getattr(out, name)), jax.tree.leaves(getattr(agent, name)),
-                                   jax.tree.leaves(getattr(agent, net))):
+        for t_new, t_old, p in zip(
+            jax.tree.leaves(getattr(out, name)),
+            jax.tree.leaves(getattr(agent, name)),
+            jax.tree.leaves(getattr(agent, net)),
+        ):
             ref = (1.0 - rho) * np.asarray(t_old, np.float64) + rho * np.asarray(p, np.float64)
             np.testing.assert_allclose(np.asarray(t_new), ref, rtol=1e-6, atol=1e-7)
     # The online networks and optimiser states are untouched.
-    for x, y in zip(jax.tree.leaves((out.actor, out.critic, out.actor_opt, out.critic_opt)),
-                    jax.tree.leaves((agent.actor, agent.critic, agent.actor_opt, agent.critic_opt))):
+    for x, y in zip(
+        jax.tree.leaves((out.actor, out.critic, out.actor_opt, out.critic_opt)),
+        jax.tree.leaves((agent.actor, agent.critic, agent.actor_opt, agent.critic_opt)),
+    ):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     if rho == 0.0:
         for x, y in zip(jax.tree.leaves(out.actor_targ), jax.tree.leaves(agent.actor_targ)):
@@ -171,8 +179,13 @@ def test_epsilon_is_the_exploration_probability(eps_greedy_many):
 def _rows(ids):
     """Transitions whose every field encodes the row id (so positions can be read back)."""
     ids = jnp.asarray(ids, jnp.float32)
-    return rb.Transition(obs=jnp.stack([ids] * OBS, -1), action=jnp.stack([ids, -ids], -1), reward=ids,
-                         next_obs=jnp.stack([ids + 0.5] * OBS, -1), done=ids % 2)
+    return rb.Transition(
+        obs=jnp.stack([ids] * OBS, -1),
+        action=jnp.stack([ids, -ids], -1),
+        reward=ids,
+        next_obs=jnp.stack([ids + 0.5] * OBS, -1),
+        done=ids % 2,
+    )
 
 
 def test_ring_buffer_wraps_at_the_traced_capacity():

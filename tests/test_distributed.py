@@ -9,6 +9,7 @@ executables, so the federated mean is summed in another order): every metric col
 goals, collisions and federated events equal. The flags are also read from the usual
 environment variables (checked in this process, without starting anything).
 """
+
 import json
 import os
 import shutil
@@ -32,11 +33,13 @@ TIMEOUT = 300  # s per run: a cold compilation cache on a loaded 2-core machine
 def tiny_config(folder: Path) -> Path:
     """FLDDPG in four small rooms, 4 episodes of 32 steps, a checkpoint every 2 episodes."""
     worlds = tiny_worlds(folder)
-    cfg = {"method": "flddpg",
-           "env": {"worlds": worlds, "episode_length": 32},
-           "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
-           "fed": {"period": 1},
-           "run": {"episodes": EPISODES, "seeds": 1, "chunk_episodes": 1, "checkpoint_every": 2}}
+    cfg = {
+        "method": "flddpg",
+        "env": {"worlds": worlds, "episode_length": 32},
+        "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
+        "fed": {"period": 1},
+        "run": {"episodes": EPISODES, "seeds": 1, "chunk_episodes": 1, "checkpoint_every": 2},
+    }
     path = folder / "tiny.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
@@ -64,9 +67,16 @@ def env():
 def run_two(env, *args) -> list[subprocess.CompletedProcess]:
     """Start processes 0 and 1 with the same flags; kill both if either fails or time runs out."""
     port = free_port()
-    procs = [subprocess.Popen(cli(*args, "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", 2,
-                                  "--process-id", i), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for i in range(2)]
+    procs = [
+        subprocess.Popen(
+            cli(*args, "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", 2, "--process-id", i),
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
     deadline = time.time() + TIMEOUT
     try:
         while any(p.poll() is None for p in procs):
@@ -89,14 +99,20 @@ def runs(tmp_path_factory, env):
     folder = tmp_path_factory.mktemp("distributed")
     cfg = tiny_config(folder)
     t = time.time()
-    ref = subprocess.run(cli("--config", cfg, "--out", folder / "single"), env=env, capture_output=True, text=True,
-                         timeout=TIMEOUT)
+    ref = subprocess.run(
+        cli("--config", cfg, "--out", folder / "single"), env=env, capture_output=True, text=True, timeout=TIMEOUT
+    )
     assert ref.returncode == 0, ref.stderr[-3000:]
     t_single = time.time() - t
     t = time.time()
     two = run_two(env, "--config", cfg, "--out", folder / "two")
-    return {"folder": folder, "single": folder / "single", "two": folder / "two", "outputs": two,
-            "seconds": {"single": t_single, "two": time.time() - t}}
+    return {
+        "folder": folder,
+        "single": folder / "single",
+        "two": folder / "two",
+        "outputs": two,
+        "seconds": {"single": t_single, "two": time.time() - t},
+    }
 
 
 def networks(params: np.lib.npyio.NpzFile) -> dict:
@@ -156,7 +172,7 @@ def test_both_processes_restore_and_the_resumed_run_is_the_same(runs, env):
 
 
 def test_distributed_config_from_flags_or_environment():
-    from fedjax_nav.parallel import DistributedConfig, ShardingError, distributed_config
+    from fedjax_nav.training.parallel import DistributedConfig, ShardingError, distributed_config
 
     env = {"JAX_COORDINATOR_ADDRESS": "10.0.0.1:1234", "JAX_NUM_PROCESSES": "4", "JAX_PROCESS_ID": "3"}
     assert distributed_config(environ=env) == DistributedConfig("10.0.0.1:1234", 4, 3)

@@ -5,6 +5,7 @@ Hand-built worlds come from `worlds.from_dict` (validated like a user's file) an
 one common shape (conftest.TINY_SHAPE) so that each env configuration compiles `step` once.
 Most use a 10 x 2 m corridor: walls at x = +-5 and y = +-1.
 """
+
 import math
 from types import SimpleNamespace
 
@@ -12,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from conftest import EPISODE_LENGTH, ROLLOUT_STEPS, drive, tiny_world
+
 from fedjax_nav import worlds
 from fedjax_nav.env import NavEnv, lidar, make_params, unicycle
 
@@ -36,10 +37,20 @@ def run(jenv, world, actions, seed=0, **overrides):
     for a in actions:
         key, k = jax.random.split(key)
         obs, new, reward, term, trunc, info = jenv.step(k, state, jnp.asarray(a, jnp.float32), params)
-        steps.append(SimpleNamespace(
-            obs=np.asarray(obs), state=new, prev=state, reward=float(reward), terminated=bool(term),
-            truncated=bool(trunc), goal=bool(info["goal"]), collision=bool(info["collision"]),
-            pose=np.asarray(info["pose"], np.float64), clearance=float(info["clearance"])))
+        steps.append(
+            SimpleNamespace(
+                obs=np.asarray(obs),
+                state=new,
+                prev=state,
+                reward=float(reward),
+                terminated=bool(term),
+                truncated=bool(trunc),
+                goal=bool(info["goal"]),
+                collision=bool(info["collision"]),
+                pose=np.asarray(info["pose"], np.float64),
+                clearance=float(info["clearance"]),
+            )
+        )
         state = new
     return params, first, steps
 
@@ -53,8 +64,9 @@ def unicycle_jit():
 
 
 def _uni(fn, pose, v, omega, dt=0.1):
-    return np.asarray(fn(jnp.asarray(pose, jnp.float32), jnp.float32(v), jnp.float32(omega), jnp.float32(dt)),
-                      np.float64)
+    return np.asarray(
+        fn(jnp.asarray(pose, jnp.float32), jnp.float32(v), jnp.float32(omega), jnp.float32(dt)), np.float64
+    )
 
 
 def test_unicycle_straight_line(unicycle_jit):
@@ -365,8 +377,13 @@ def test_observation_layout(learn_env, lidar_jit, heading, goal):
 
 def test_step_compiles_once_for_all_worlds_of_one_shape(learn_env):
     w1 = tiny_world(starts=[[0.0, 0.0, 0.0]], goals=[[4.0, 0.0]])
-    w2 = tiny_world(starts=[[1.0, 0.5, 1.0], [2.0, 0.0, 0.0]], goals=[[-4.0, 0.0], [1.0, 0.0]],
-                    segments=[[-1.0, -0.5, -1.0, 0.5]], circles=[[3.0, 0.5, 0.2]], size=(12.0, 3.0))
+    w2 = tiny_world(
+        starts=[[1.0, 0.5, 1.0], [2.0, 0.0, 0.0]],
+        goals=[[-4.0, 0.0], [1.0, 0.0]],
+        segments=[[-1.0, -0.5, -1.0, 0.5]],
+        circles=[[3.0, 0.5, 0.2]],
+        size=(12.0, 3.0),
+    )
     run(learn_env, w1, [(1.0, 0.0)])
     before = learn_env.traces
     run(learn_env, w2, [(1.0, 0.0), (0.3, 0.2)], v_max=0.7, random_starts=True, goal_index=1, range_noise=0.1)
@@ -389,7 +406,8 @@ def test_bad_env_settings_raise():
 def test_vmapped_batch_equals_loop_over_single_robots(batch_setup, batch_env):
     b = batch_setup
     obs0, obs, reward, term, trunc, pose, start_idx, t = drive(
-        batch_env, b["keys"], b["params"], b["actions"], batched=True)
+        batch_env, b["keys"], b["params"], b["actions"], batched=True
+    )
     n = len(b["names"])
     assert obs.shape == (n, ROLLOUT_STEPS, 28)
     assert b["stacked"].segments.shape[0] == n
@@ -397,7 +415,8 @@ def test_vmapped_batch_equals_loop_over_single_robots(batch_setup, batch_env):
         world = worlds.load(name)  # its own, unpadded shapes
         params = make_params(world, **b["overrides"])
         s_obs0, s_obs, s_reward, s_term, s_trunc, s_pose, s_idx, s_t = drive(
-            batch_env, b["keys"][i], params, b["actions"][i], batched=False)
+            batch_env, b["keys"][i], params, b["actions"][i], batched=False
+        )
         np.testing.assert_allclose(obs0[i], s_obs0, atol=1e-5)
         np.testing.assert_array_equal(term[i], s_term)
         np.testing.assert_array_equal(start_idx[i], s_idx)

@@ -1,9 +1,11 @@
 """The evaluation protocol: scripted policies with known outcomes on tiny hand-built worlds, the
-metrics' bookkeeping, determinism without noise, and `fedjax-nav evaluate` on a tiny trained run.
+metrics' bookkeeping, determinism without noise, and `fedjax-nav evaluate` on a tiny trained run
+(where its files go: one folder per world, `--out`, re-runs; docs/evaluation.md).
 
 Every scripted test uses the same padded world shape, T and policy objects where it can, so the
 evaluation program compiles a few times for the whole file.
 """
+
 import json
 import math
 import os
@@ -15,8 +17,9 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import yaml  # noqa: E402
 
-from fedjax_nav import worlds  # noqa: E402
+from fedjax_nav import rundir, worlds  # noqa: E402
 from fedjax_nav.evaluation import (  # noqa: E402
+    EVAL_FILES,
     EvalError,
     episodes_frame,
     evaluate_policy,
@@ -74,8 +77,9 @@ STILL = agents((0.0, 0.0))
 def run(params=DRIVE, world=CORRIDOR, policy=scripted, **kw):
     kw.setdefault("range_noise", 0.0)
     kw.setdefault("action_noise", 0.0)
-    return evaluate_policy(policy, world, params, attempts=K, max_steps=T, v_max=V_MAX, dt=DT,
-                           goal_radius=GOAL_RADIUS, **kw)
+    return evaluate_policy(
+        policy, world, params, attempts=K, max_steps=T, v_max=V_MAX, dt=DT, goal_radius=GOAL_RADIUS, **kw
+    )
 
 
 def test_straight_at_goal_succeeds_with_efficiency_one():
@@ -104,8 +108,9 @@ def test_straight_at_goal_succeeds_with_efficiency_one():
     assert np.linalg.norm(p[n - 1, :2] - r.goals[0]) >= GOAL_RADIUS
     np.testing.assert_array_equal(p[n:], np.broadcast_to(p[n], p[n:].shape))
     # path length equals the polyline length of the recorded poses
-    np.testing.assert_allclose(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum(), r.path_length[0, 0, 0],
-                               rtol=1e-4)
+    np.testing.assert_allclose(
+        np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1).sum(), r.path_length[0, 0, 0], rtol=1e-4
+    )
 
 
 def test_driving_into_a_wall_fails():
@@ -182,10 +187,10 @@ def test_zero_noise_is_deterministic_and_noise_makes_attempts_differ():
 
 
 def test_one_compilation_for_every_setting_of_the_same_shapes():
-    from fedjax_nav.evaluation import protocol
+    from fedjax_nav.evaluation import rollout
 
     run(seed=5)
-    program = protocol._program((24, 3.5, T, "exact"), scripted, 64)
+    program = rollout._program((24, 3.5, T, "exact"), scripted, 64)
     before = program._cache_size()
     run(STILL, FACING_WALL, seed=6, range_noise=0.3, action_noise=0.2)  # other world data, noise, params
     assert program._cache_size() == before == 1
@@ -224,13 +229,15 @@ def tiny_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("evalrun")
     world_file = root / "tiny.yaml"
     world_file.write_text(yaml.safe_dump(TINY_WORLD))
-    cfg = from_dict({
-        "method": "iddpg",
-        "env": {"worlds": [str(world_file)] * 2, "episode_length": 16},
-        "ddpg": {"hidden": 16, "depth": 2, "buffer_size": 64, "batch_size": 8},
-        "fed": {"period": 1},
-        "run": {"episodes": 1, "seeds": 2, "chunk_episodes": 1, "checkpoint_every": 0},
-    })
+    cfg = from_dict(
+        {
+            "method": "iddpg",
+            "env": {"worlds": [str(world_file)] * 2, "episode_length": 16},
+            "ddpg": {"hidden": 16, "depth": 2, "buffer_size": 64, "batch_size": 8},
+            "fed": {"period": 1},
+            "run": {"episodes": 1, "seeds": 2, "chunk_episodes": 1, "checkpoint_every": 0},
+        }
+    )
     out = root / "iddpg"
     train(cfg, out, progress=False)
     return out, world_file
@@ -261,18 +268,37 @@ def test_cli_evaluate_writes_results_and_figures(tiny_run, tmp_path, capsys):
     run_dir, world_file = tiny_run
     sn = _fake_snddpg(run_dir, tmp_path / "snddpg")
     out = tmp_path / "cmp"
-    rc = main(["evaluate", str(run_dir), str(sn), "--world", str(world_file), "--attempts", "2",
-               "--range-noise", "0.02", "--action-noise", "0.03", "--seed", "3", "--out", str(out)])
+    rc = main(
+        [
+            "evaluate",
+            str(run_dir),
+            str(sn),
+            "--world",
+            str(world_file),
+            "--attempts",
+            "2",
+            "--range-noise",
+            "0.02",
+            "--action-noise",
+            "0.03",
+            "--seed",
+            "3",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "noise" in printed and "0.02" in printed and "0.03" in printed
     assert "selected on evaluation data" in printed
     for d in (run_dir, sn):
-        for name in ("eval.json", "eval_episodes.csv", "eval_trajectories.npz", "eval_bars.png",
-                     "eval_trajectories.png"):
-            assert (d / name).stat().st_size > 0, (d, name)
-    a = json.loads((run_dir / "eval.json").read_text())
-    b = json.loads((sn / "eval.json").read_text())
+        dest = rundir.eval_dir(d, world_file)
+        assert dest == d / "eval" / "tiny"
+        for name in EVAL_FILES:
+            assert (dest / name).stat().st_size > 0, (dest, name)
+        assert not (d / "eval.json").exists()  # nothing at the top level (the old layout)
+    a = json.loads((rundir.eval_dir(run_dir, world_file) / "eval.json").read_text())
+    b = json.loads((rundir.eval_dir(sn, world_file) / "eval.json").read_text())
     assert a["noise"]["range_noise"] == 0.02 and a["noise"]["action_noise"] == 0.03
     assert a["max_steps"] == 16 and a["eval_seed"] == 3
     # per-robot: 4 agents x 2 goals x 2 attempts; shared network: 2 agents x 2 goals x 4 attempts
@@ -283,7 +309,7 @@ def test_cli_evaluate_writes_results_and_figures(tiny_run, tmp_path, capsys):
     assert o["successes"] + o["collisions"] + o["timeouts"] == 16
     import pandas as pd
 
-    df = pd.read_csv(run_dir / "eval_episodes.csv")
+    df = pd.read_csv(rundir.eval_dir(run_dir, world_file) / "eval_episodes.csv")
     assert len(df) == 16 and df["success"].sum() == o["successes"]
     for name in ("eval_comparison.csv", "eval_comparison.md", "eval_comparison.png"):
         assert (out / name).stat().st_size > 0
@@ -296,3 +322,116 @@ def test_cli_evaluate_bad_run_dir(tmp_path, capsys):
 
     assert main(["evaluate", str(tmp_path / "missing")]) == 2
     assert "no such run directory" in capsys.readouterr().err
+
+
+def _copy_run(run_dir, dest):
+    """A fresh run directory holding the tiny run's config.yaml and params.npz (no evaluations)."""
+    dest.mkdir()
+    for name in ("config.yaml", "params.npz"):
+        (dest / name).write_bytes((run_dir / name).read_bytes())
+    return dest
+
+
+OTHER_GOALS = [[1.2, -1.2], [-1.2, 1.2]]
+
+
+def test_evaluations_are_kept_per_world(tiny_run, tmp_path, capsys):
+    """The same run on two worlds: two folders with their own numbers; the second evaluation
+    touches neither the first world's folder nor a legacy RUN/eval.json of the old layout."""
+    import pandas as pd
+
+    from fedjax_nav.cli import main
+
+    run_dir, world_file = tiny_run
+    run = _copy_run(run_dir, tmp_path / "run")
+    legacy = run / "eval.json"
+    legacy.write_text('{"legacy": true}')
+    other = tmp_path / "other.yaml"  # same shapes as tiny.yaml (no new compilation), other goals
+    other.write_text(yaml.safe_dump({**TINY_WORLD, "goals": OTHER_GOALS}))
+    flags = ["--attempts", "1", "--no-figures"]
+    assert main(["evaluate", str(run), "--world", str(world_file), *flags]) == 0
+    first = run / "eval" / "tiny"
+    kept = {n: (first / n).read_bytes() for n in ("eval.json", "eval_episodes.csv", "eval_trajectories.npz")}
+    assert main(["evaluate", str(run), "--world", str(other), *flags]) == 0
+    second = run / "eval" / "other"
+    assert rundir.eval_dir(run, other) == second
+    assert {n: (first / n).read_bytes() for n in kept} == kept
+    assert legacy.read_text() == '{"legacy": true}'
+    a, b = (json.loads((d / "eval.json").read_text()) for d in (first, second))
+    assert (a["world"], b["world"]) == ("tiny", "other")
+    assert a["world_source"] == str(world_file) and b["world_source"] == str(other)
+    np.testing.assert_allclose(a["goals"], TINY_WORLD["goals"], atol=1e-6)
+    np.testing.assert_allclose(b["goals"], OTHER_GOALS, atol=1e-6)
+    for d, s in ((first, a), (second, b)):
+        df = pd.read_csv(d / "eval_episodes.csv")
+        assert len(df) == s["episodes"] == 4 * 2 * 1
+        assert df["success"].sum() == s["all_agents"]["overall"]["successes"]
+        np.testing.assert_allclose(sorted(set(df["goal_y"])), sorted({g[1] for g in s["goals"]}), atol=1e-6)
+    assert "replacing" not in capsys.readouterr().out
+    assert sorted(p.name for p in (run / "eval").iterdir()) == ["other", "tiny"]
+
+
+def test_out_is_honoured_for_one_run(tiny_run, tmp_path, capsys):
+    from fedjax_nav.cli import main
+
+    run_dir, world_file = tiny_run
+    run = _copy_run(run_dir, tmp_path / "run")
+    out = tmp_path / "elsewhere"
+    assert main(["evaluate", str(run), "--world", str(world_file), "--attempts", "1", "--out", str(out)]) == 0
+    for name in EVAL_FILES:
+        assert (out / name).stat().st_size > 0, name
+    assert sorted(p.name for p in run.iterdir()) == ["config.yaml", "params.npz"]  # the run untouched
+    assert json.loads((out / "eval.json").read_text())["episodes"] == 8
+    assert f"{out / 'eval.json'}" in capsys.readouterr().out
+
+
+def test_rerunning_an_evaluation_replaces_it_and_says_so(tiny_run, tmp_path, capsys):
+    from fedjax_nav.cli import main
+
+    run_dir, world_file = tiny_run
+    run = _copy_run(run_dir, tmp_path / "run")
+    dest = rundir.eval_dir(run, world_file)
+
+    def evaluate(seed, *flags):
+        assert (
+            main(["evaluate", str(run), "--world", str(world_file), "--attempts", "1", "--seed", str(seed), *flags])
+            == 0
+        )
+        return [line for line in capsys.readouterr().out.splitlines() if "replacing" in line]
+
+    assert evaluate(2) == []
+    assert (dest / "eval_bars.png").exists()
+    assert evaluate(2, "--no-figures") == [
+        f"replacing the earlier evaluation in {dest} (the same run, world and settings)"
+    ]
+    assert not (dest / "eval_bars.png").exists()  # no stale figure of the earlier evaluation is left
+    assert evaluate(5, "--no-figures") == [f"replacing the earlier evaluation in {dest} (it differs: seed 2 -> 5)"]
+    assert json.loads((dest / "eval.json").read_text())["eval_seed"] == 5
+    assert sorted(p.name for p in (run / "eval").iterdir()) == ["tiny"]
+
+
+def test_evaluation_imports_only_the_layers_below_it():
+    """fedjax_nav.evaluation reads runs through fedjax_nav.rundir, never through training or analysis."""
+    import ast
+    from pathlib import Path
+
+    import fedjax_nav.evaluation as pkg
+
+    allowed = {"worlds", "env", "agents", "federated", "methods", "config", "rundir", "evaluation"}
+    for path in sorted(Path(pkg.__file__).parent.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom) and node.level == 0
+                else []
+            )
+            for name in names:
+                parts = name.split(".")
+                if parts[0] == "fedjax_nav" and len(parts) > 1:
+                    assert parts[1] in allowed, f"{path.name} imports {name}"
+                elif name == "fedjax_nav" and isinstance(node, ast.ImportFrom):
+                    for a in node.names:
+                        assert a.name in allowed, f"{path.name} imports fedjax_nav.{a.name}"
+        assert len(path.read_text().splitlines()) < 400, path.name

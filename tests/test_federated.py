@@ -1,13 +1,14 @@
 """Federated aggregators against numpy (float64) references on random stacked pytrees, and the
 communication accounting of Table 3 (docs/decisions.md, Federated aggregation and Communication)."""
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from fedjax_nav import methods
 from fedjax_nav.federated import aggregators as agg
 from fedjax_nav.federated import communication
-from fedjax_nav import methods
 
 K = 4
 
@@ -16,8 +17,10 @@ def random_params(seed: int, k: int = K):
     """A nested pytree of stacked client parameters, leaves [K, ...]."""
     rng = np.random.default_rng(seed)
     f = lambda *s: jnp.asarray(rng.normal(size=(k, *s)), jnp.float32)  # noqa: E731
-    return {"actor": {"Dense_0": {"kernel": f(3, 2), "bias": f(2)}, "v_head": {"bias": f(1)}},
-            "critic": {"Dense_0": {"kernel": f(5, 4)}, "scale": f()}}
+    return {
+        "actor": {"Dense_0": {"kernel": f(3, 2), "bias": f(2)}, "v_head": {"bias": f(1)}},
+        "critic": {"Dense_0": {"kernel": f(5, 4)}, "scale": f()},
+    }
 
 
 def np_leaves(tree):
@@ -119,7 +122,7 @@ def test_real_weighting_signed_normalised_with_negative_rewards(beta, tau):
 def test_real_weighting_all_negative_rewards():
     p = random_params(6)
     r = jnp.array([-1.0, -2.0, -0.5, -4.0])
-    w = -np.abs(np.asarray(r, np.float64)) ** 0.5 / (np.abs(np.asarray(r, np.float64)) ** 0.5).sum()
+    w = -(np.abs(np.asarray(r, np.float64)) ** 0.5) / (np.abs(np.asarray(r, np.float64)) ** 0.5).sum()
     out, _ = aggregate("rw", p, r, jnp.float32(1.0), jnp.float32(0.5))
     assert_leaves_close(out, np_mix(p, w, 1.0), rtol=1e-5, atol=1e-5)  # theta_w = -(convex mean)
 
@@ -236,16 +239,19 @@ def test_methods_table_is_the_one_source_of_names():
 THESIS = dict(episodes=125, steps=1024, train_every=5, batch=512)
 
 
-@pytest.mark.parametrize("name, n_data, n_nn, n_comm", [
-    ("iddpg", 0, 0, 0),
-    ("seddpg", 1024 + 205 * 512, 0, 13_248_000),
-    ("snddpg", 1024, 205, 153_625),
-    ("flddpg", 0, 0.5, 62.5),
-    ("gsddpg", 0, 0.5, 62.5),
-    ("flsddpg", 0, 0.5, 62.5),
-    ("pwddpg", 0, 1.0, 125),
-    ("rwddpg", 0, 1.0, 125),
-])
+@pytest.mark.parametrize(
+    "name, n_data, n_nn, n_comm",
+    [
+        ("iddpg", 0, 0, 0),
+        ("seddpg", 1024 + 205 * 512, 0, 13_248_000),
+        ("snddpg", 1024, 205, 153_625),
+        ("flddpg", 0, 0.5, 62.5),
+        ("gsddpg", 0, 0.5, 62.5),
+        ("flsddpg", 0, 0.5, 62.5),
+        ("pwddpg", 0, 1.0, 125),
+        ("rwddpg", 0, 1.0, 125),
+    ],
+)
 def test_table3_exactly(name, n_data, n_nn, n_comm):
     c = communication(methods.get(name), period_unit="episodes", period=2, **THESIS)
     assert c["n_data_per_episode"] == n_data

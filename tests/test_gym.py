@@ -1,5 +1,6 @@
 """The gymnasium wrapper (optional extra): passes gymnasium's checker, shapes, and keeps
 `terminated` (goal / collision) apart from `truncated` (time limit)."""
+
 import json
 
 import numpy as np

@@ -1,4 +1,5 @@
 """Rendering of worlds and random trajectories, and the `fedjax-nav render` command."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -52,14 +53,24 @@ def test_draw_bare_world_and_trajectories(tmp_path):
     fig = Figure()
     ax = fig.add_subplot()
     world = worlds.stack([worlds.load("train-1"), worlds.load("eval")])  # padded rows
-    one = worlds.World(*[leaf[0] for leaf in (world.segments, world.circles, world.starts,
-                                                world.num_starts, world.goals, world.num_goals,
-                                                world.size)])
+    one = worlds.World(
+        *[
+            leaf[0]
+            for leaf in (
+                world.segments,
+                world.circles,
+                world.starts,
+                world.num_starts,
+                world.goals,
+                world.num_goals,
+                world.size,
+            )
+        ]
+    )
     render.draw_world(ax, one, title="train-1 padded")
     assert len(ax.patches) >= 3  # the three boxes were found as closed quads
     xy = np.cumsum(np.full((2, 10, 2), 0.1), axis=1)
-    render.draw_trajectories(ax, xy, mask=np.ones((2, 10), bool), colors=["k", "m"],
-                             outcomes=["success", "collision"])
+    render.draw_trajectories(ax, xy, mask=np.ones((2, 10), bool), colors=["k", "m"], outcomes=["success", "collision"])
     out = tmp_path / "bare.png"
     fig.savefig(out, dpi=50)
     assert _is_png(out)

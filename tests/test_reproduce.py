@@ -5,6 +5,7 @@ notebook runs headless on the report.
 The reduced programme (54 distinct configs x 2 seeds, 9 compiled groups, 8 evaluations) is run
 once per module: about 2-4 minutes on a 2-core CPU, most of it compilation.
 """
+
 import json
 import os
 from pathlib import Path
@@ -12,17 +13,32 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from fedjax_nav import cli
-from fedjax_nav import reproduce as rp
+from fedjax_nav import cli, methods
+from fedjax_nav.experiments import reproduce as rp
 from fedjax_nav.federated.comm import communication
-from fedjax_nav import methods
 
 ROOT = Path(__file__).resolve().parents[1]
-FIGURES = ["fig11_snddpg_buffer.png", "fig12_fed_period_learning.png", "fig13_fed_period_success.png", "fig14_tau.png",
-           "fig15_methods_reward.png", "fig16_methods_success.png", "fig17_eval_best_agents.png",
-           "fig18_eval_methods.png", "fig19_improvements_learning.png", "fig20_eval_improvements.png"]
-TABLES = ["table2_hyperparameters.csv", "table2_hyperparameters.md", "table3_communication.csv",
-          "table3_communication.md", "eval_summary.csv", "report.md", "reproduce.json"]
+FIGURES = [
+    "fig11_snddpg_buffer.png",
+    "fig12_fed_period_learning.png",
+    "fig13_fed_period_success.png",
+    "fig14_tau.png",
+    "fig15_methods_reward.png",
+    "fig16_methods_success.png",
+    "fig17_eval_best_agents.png",
+    "fig18_eval_methods.png",
+    "fig19_improvements_learning.png",
+    "fig20_eval_improvements.png",
+]
+TABLES = [
+    "table2_hyperparameters.csv",
+    "table2_hyperparameters.md",
+    "table3_communication.csv",
+    "table3_communication.md",
+    "eval_summary.csv",
+    "report.md",
+    "reproduce.json",
+]
 
 
 @pytest.fixture(scope="module")
@@ -106,8 +122,9 @@ def test_the_analysis_notebook_runs_on_the_report(report):
     old = os.environ.get("FEDJAX_NAV_RESULTS")
     os.environ["FEDJAX_NAV_RESULTS"] = str(out)
     try:
-        nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
-                                resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
+        nbclient.NotebookClient(
+            nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(ROOT / "notebooks")}}
+        ).execute()
     finally:
         if old is None:
             os.environ.pop("FEDJAX_NAV_RESULTS")

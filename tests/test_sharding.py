@@ -1,4 +1,4 @@
-"""The trainer sharded over devices (fedjax_nav.parallel) gives the single-device run's results.
+"""The trainer sharded over devices (fedjax_nav.training.parallel) gives the single-device run's results.
 
 This test process has one CPU device, so the multi-device cases run in one subprocess with 4
 forced host devices (`--xla_force_host_platform_device_count=4`, `worker` below) that prints a
@@ -26,6 +26,7 @@ What "the same" means here (measured with jax 0.10.2 on XLA:CPU; numbers in docs
   size, and rewards (differences of positions) 1e-5, so the check is per network, and the runs
   are short.
 """
+
 import json
 import os
 import subprocess
@@ -51,8 +52,12 @@ def tiny_worlds(folder: Path) -> list[str]:
     folder.mkdir(parents=True, exist_ok=True)
     names = []
     for i in range(ROBOTS):
-        spec = {"size": [3.0 + 0.5 * i, 3.0], "circles": [[0.5, 0.4 * i - 0.6, 0.3]],
-                "starts": [[-1.0, -1.0, 0.3 * i]], "goals": [[1.0, 1.0]]}
+        spec = {
+            "size": [3.0 + 0.5 * i, 3.0],
+            "circles": [[0.5, 0.4 * i - 0.6, 0.3]],
+            "starts": [[-1.0, -1.0, 0.3 * i]],
+            "goals": [[1.0, 1.0]],
+        }
         path = folder / f"room-{i}.json"
         path.write_text(json.dumps(spec))
         names.append(str(path))
@@ -60,9 +65,19 @@ def tiny_worlds(folder: Path) -> list[str]:
 
 
 def tiny_overrides(worlds: list[str]) -> list[str]:
-    return [f"env.worlds=[{','.join(worlds)}]", "env.episode_length=32", "ddpg.batch_size=8",
-            "ddpg.buffer_size=64", "ddpg.hidden=16", "ddpg.depth=2", f"run.seeds={SEEDS}", f"run.episodes={EPISODES}",
-            "run.chunk_episodes=1", "run.checkpoint_every=0", "fed.period=1"]
+    return [
+        f"env.worlds=[{','.join(worlds)}]",
+        "env.episode_length=32",
+        "ddpg.batch_size=8",
+        "ddpg.buffer_size=64",
+        "ddpg.hidden=16",
+        "ddpg.depth=2",
+        f"run.seeds={SEEDS}",
+        f"run.episodes={EPISODES}",
+        "run.chunk_episodes=1",
+        "run.checkpoint_every=0",
+        "fed.period=1",
+    ]
 
 
 # ----------------------------------------------------------------------------- the worker
@@ -72,8 +87,8 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
     import jax
     import jax.numpy as jnp
 
-    from fedjax_nav import parallel
     from fedjax_nav.config import load_config
+    from fedjax_nav.training import parallel
     from fedjax_nav.training.trainer import Trainer, hp_axes, hparams_from_config
 
     assert jax.device_count() == DEVICES, jax.devices()
@@ -97,14 +112,26 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
                 r = float(np.max(np.abs(a.astype(np.float64) - b))) / (float(np.max(np.abs(a))) or 1.0)
             if r > rel:
                 rel, worst = r, name
-        return {"bitwise": all(np.array_equal(a, b) for (_, a), (_, b) in zip(ref, got)), "max_rel": rel,
-                "worst": worst}
+        return {
+            "bitwise": all(np.array_equal(a, b) for (_, a), (_, b) in zip(ref, got)),
+            "max_rel": rel,
+            "worst": worst,
+        }
 
     def networks(st):
         """Each network as one vector: actor, critic, their targets, Adam's moments, GS's global model."""
         a = st.agents
-        return [a.actor, a.critic, a.actor_targ, a.critic_targ, a.actor_opt.mu, a.actor_opt.nu, a.critic_opt.mu,
-                a.critic_opt.nu, st.agg_state]
+        return [
+            a.actor,
+            a.critic,
+            a.actor_targ,
+            a.critic_targ,
+            a.actor_opt.mu,
+            a.actor_opt.nu,
+            a.critic_opt.mu,
+            a.critic_opt.nu,
+            st.agg_state,
+        ]
 
     def network_rel(ref, got) -> float:
         """max |a - b| / max |a| over all leaves of one network (per array, a bias near zero would
@@ -117,21 +144,34 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
 
     def mesh_of(axis, n):
         if axis == GRID[0]:
-            return jax.make_mesh((2, n // 2), ("seeds", "clients"), axis_types=(jax.sharding.AxisType.Auto,) * 2,
-                                 devices=jax.devices()[:n])
+            return jax.make_mesh(
+                (2, n // 2),
+                ("seeds", "clients"),
+                axis_types=(jax.sharding.AxisType.Auto,) * 2,
+                devices=jax.devices()[:n],
+            )
         return parallel.make_mesh(n, axis)
 
     report = {"fed_step": {}, "train": {}, "seconds": {}}
     t0 = time.time()
 
     # --- the federated step of every aggregator, on states whose clients differ
-    for method, targets in [("flddpg", False), ("flddpg", True), ("pwddpg", False), ("rwddpg", False),
-                            ("gsddpg", False), ("gsddpg", True)]:
-        cfg = load_config(root / f"{method}.yaml", tiny_overrides(worlds) + [f"fed.include_targets={str(targets).lower()}"])
+    for method, targets in [
+        ("flddpg", False),
+        ("flddpg", True),
+        ("pwddpg", False),
+        ("rwddpg", False),
+        ("gsddpg", False),
+        ("gsddpg", True),
+    ]:
+        cfg = load_config(
+            root / f"{method}.yaml", tiny_overrides(worlds) + [f"fed.include_targets={str(targets).lower()}"]
+        )
         tr, hp = Trainer(cfg), hparams_from_config(cfg)
         st = tr.init_seeds(jnp.arange(SEEDS), hp)
-        st = st.replace(reward_sum=jax.random.normal(jax.random.key(1), st.reward_sum.shape),
-                        reward_steps=jnp.full((SEEDS,), 20.0))
+        st = st.replace(
+            reward_sum=jax.random.normal(jax.random.key(1), st.reward_sum.shape), reward_steps=jnp.full((SEEDS,), 20.0)
+        )
         if method == "gsddpg":  # a global model away from the clients' mean
             st = st.replace(agg_state=jax.tree.map(lambda x: x + 0.1, st.agg_state))
         step = jax.vmap(tr.federated_step, in_axes=(0, hp_axes(hp)))
@@ -144,7 +184,10 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
                 sh = parallel.state_shardings(st, mesh)
                 f = jax.jit(step, in_shardings=(sh, parallel.seed_shardings(h, mesh)), out_shardings=sh)
                 out = f(parallel.put(st, sh), h)
-                assert out.agents.actor["params"]["Dense_0"]["kernel"].sharding == sh.agents.actor["params"]["Dense_0"]["kernel"]
+                assert (
+                    out.agents.actor["params"]["Dense_0"]["kernel"].sharding
+                    == sh.agents.actor["params"]["Dense_0"]["kernel"]
+                )
                 report["fed_step"][f"{method}{'+targets' if targets else ''} tau={tau} {axis}x{n}"] = compare(ref, out)
 
     report["seconds"]["fed_step"] = time.time() - t0
@@ -161,8 +204,10 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
             ms.append(m)
         return ms, states
 
-    for method, extra, taus in [("flddpg", [], (0.5, 0.0, 1.0)),
-                                ("gsddpg", ["fed.period_unit=steps", "fed.period=6"], (0.5,))]:
+    for method, extra, taus in [
+        ("flddpg", [], (0.5, 0.0, 1.0)),
+        ("gsddpg", ["fed.period_unit=steps", "fed.period=6"], (0.5,)),
+    ]:
         cfg = load_config(root / f"{method}.yaml", tiny_overrides(worlds) + extra)
         tr, hp = Trainer(cfg), hparams_from_config(cfg)
         hps = [hp | {"fed.tau": jnp.float32(tau)} for tau in taus]
@@ -180,8 +225,11 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
                 r["metrics"] = compare(ref[0], got[0])
                 r["params"] = compare((ref[1].agents, ref[1].agg_state), (got[1].agents, got[1].agg_state))
                 r["networks"] = max(network_rel(a, b) for a, b in zip(networks(ref[1]), networks(got[1])))
-                r["discrete_equal"] = all(np.array_equal(np.asarray(a[k]), np.asarray(b[k]))
-                                          for a, b in zip(ref[0], got[0]) for k in ("goals", "collisions", "fed_events"))
+                r["discrete_equal"] = all(
+                    np.array_equal(np.asarray(a[k]), np.asarray(b[k]))
+                    for a, b in zip(ref[0], got[0])
+                    for k in ("goals", "collisions", "fed_events")
+                )
                 r["fed_events"] = int(sum(np.asarray(m["fed_events"]).sum() for m in got[0]))
 
     report["seconds"]["train"] = time.time() - t0
@@ -194,8 +242,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
     first = episodes(chunk, copy(init), hp)
     outs = [episodes(chunk, copy(init), hp) for _ in range(20)]
     jax.block_until_ready(outs)
-    report["repeat"] = {"runs": len(outs), "all_equal_first": all(
-        compare(first, o)["bitwise"] for o in outs)}
+    report["repeat"] = {"runs": len(outs), "all_equal_first": all(compare(first, o)["bitwise"] for o in outs)}
     report["seconds"]["repeat"] = time.time() - t0
     return report
 
@@ -207,16 +254,27 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
 def report(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sharding")
     # every compilation into the persistent cache (conftest's), the small ones of the federated step too
-    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=f"--xla_force_host_platform_device_count={DEVICES}",
-               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
-    code = ("import json, sys; sys.path.insert(0, sys.argv[1]); import test_sharding as t; "
-            "print('REPORT ' + json.dumps(t.worker(sys.argv[2])))")
-    res = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent), str(folder)], env=env,
-                         capture_output=True, text=True, timeout=TIMEOUT)
+    env = dict(
+        os.environ,
+        JAX_PLATFORMS="cpu",
+        XLA_FLAGS=f"--xla_force_host_platform_device_count={DEVICES}",
+        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+    )
+    code = (
+        "import json, sys; sys.path.insert(0, sys.argv[1]); import test_sharding as t; "
+        "print('REPORT ' + json.dumps(t.worker(sys.argv[2])))"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code, str(Path(__file__).parent), str(folder)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT,
+    )
     assert res.returncode == 0, res.stderr[-4000:]
     line = [x for x in res.stdout.splitlines() if x.startswith("REPORT ")]
     assert line, res.stdout[-2000:] + res.stderr[-2000:]
-    return json.loads(line[-1][len("REPORT "):])
+    return json.loads(line[-1][len("REPORT ") :])
 
 
 def test_every_aggregator_across_devices(report):
@@ -252,7 +310,7 @@ def test_no_deadlock_in_20_repeated_runs(report):
 def test_placement_errors_name_the_numbers():
     import jax
 
-    from fedjax_nav import parallel
+    from fedjax_nav.training import parallel
 
     mesh = parallel.make_mesh(1)
     parallel.check_placement(mesh, 3, 5, False, False)  # one device: anything goes
@@ -282,8 +340,8 @@ def test_state_shardings_by_field(tmp_path):
     import jax.numpy as jnp
     from jax.sharding import PartitionSpec as P
 
-    from fedjax_nav import parallel
     from fedjax_nav.config import load_config
+    from fedjax_nav.training import parallel
     from fedjax_nav.training.trainer import Trainer, hparams_from_config
 
     root = Path(__file__).resolve().parents[1] / "configs" / "thesis"
@@ -318,8 +376,10 @@ def test_train_with_seeds_a_multiple_of_the_cores_spreads_them_by_default(tmp_pa
     device per core without any flag; `--devices 1` keeps the one-device program."""
     cores = os.cpu_count()
     cfg = tmp_path / "tiny.yaml"
-    cfg.write_text("method: flddpg\nenv: {episode_length: 8}\nddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
-                   "fed: {period: 1}\nrun: {episodes: 1, chunk_episodes: 1, checkpoint_every: 0}\n")
+    cfg.write_text(
+        "method: flddpg\nenv: {episode_length: 8}\nddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
+        "fed: {period: 1}\nrun: {episodes: 1, chunk_episodes: 1, checkpoint_every: 0}\n"
+    )
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
     exe = [sys.executable, "-m", "fedjax_nav.cli", "train", "--config", str(cfg), "--seeds", str(cores), "--quiet"]

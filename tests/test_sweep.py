@@ -5,6 +5,7 @@ One tiny FLDDPG sweep (tau x buffer size, 2 seeds, 2 episodes of 16 steps) is tr
 module and read by most tests; the others train the same group again (the persistent
 compilation cache of conftest.py makes that cheap).
 """
+
 import json
 from pathlib import Path
 
@@ -15,18 +16,31 @@ import pytest
 import yaml
 
 from fedjax_nav import cli
-from fedjax_nav import sweep as sw
+from fedjax_nav.experiments.sweeps import run_sweep
+from fedjax_nav.training import sweep as sw
 from fedjax_nav.training.run import train
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = sorted((ROOT / "configs" / "sweeps").glob("*.yaml"))
-TINY_SET = ["env.episode_length=16", "run.chunk_episodes=1", "ddpg.batch_size=8", "ddpg.hidden=16",
-            "run.checkpoint_every=0", "run.episodes=2", "fed.period=1"]
+TINY_SET = [
+    "env.episode_length=16",
+    "run.chunk_episodes=1",
+    "ddpg.batch_size=8",
+    "ddpg.hidden=16",
+    "run.checkpoint_every=0",
+    "run.episodes=2",
+    "fed.period=1",
+]
 
 
 def write_sweep(folder: Path, name: str = "tiny", **extra) -> Path:
-    spec = {"name": name, "base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"), "seeds": 2, "set": TINY_SET,
-            "grid": {"fed.tau": [0.0, 0.5, 1.0], "ddpg.buffer_size": [16, 48]}}
+    spec = {
+        "name": name,
+        "base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"),
+        "seeds": 2,
+        "set": TINY_SET,
+        "grid": {"fed.tau": [0.0, 0.5, 1.0], "ddpg.buffer_size": [16, 48]},
+    }
     spec.update(extra)
     path = folder / f"{name}.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
@@ -38,7 +52,7 @@ def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sweep")
     sweep = sw.load_sweep(write_sweep(folder))
     out = folder / "out"
-    summ, stats = sw.run_sweep(sweep, out, progress=False, echo=lambda s: None)
+    summ, stats = run_sweep(sweep, out, progress=False, echo=lambda s: None)
     return {"folder": folder, "sweep": sweep, "out": out, "summary": summ, "stats": stats}
 
 
@@ -56,13 +70,26 @@ def test_every_shipped_sweep_loads(path):
         for k, v in p.values.items():
             if k != "base":
                 section, name = k.split(".")
-                assert getattr(getattr(p.cfg, section), name) == v
+                assert getattr(getattr(p.cfg, section), name) == (tuple(v) if isinstance(v, list) else v)
 
 
 def test_shipped_sweeps_cover_the_thesis_experiments():
     names = {p.stem for p in SWEEPS}
-    assert {"gamma", "rho", "buffer_iddpg", "buffer_seddpg", "buffer_snddpg", "buffer_flddpg", "fed_period_steps",
-            "fed_period_episodes", "tau", "methods", "pw_beta", "rw_beta", "improvements"} <= names
+    assert {
+        "gamma",
+        "rho",
+        "buffer_iddpg",
+        "buffer_seddpg",
+        "buffer_snddpg",
+        "buffer_flddpg",
+        "fed_period_steps",
+        "fed_period_episodes",
+        "tau",
+        "methods",
+        "pw_beta",
+        "rw_beta",
+        "improvements",
+    } <= names
     tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")
     assert [p.cfg.fed.tau for p in tau.points] == [0.0, 0.5, 1.0] and tau.seeds == 8
     steps = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
@@ -100,14 +127,17 @@ def test_shared_configs_are_trained_once_with_the_most_seeds():
     assert len(shared) == 1 and shared[0].cfg.run.seeds == 8 and a.points[1].id == b.points[1].id
 
 
-@pytest.mark.parametrize("spec, match", [
-    ({"grid": {"fed.tau": [0.5]}, "bogus": 1}, "unknown key"),
-    ({"grid": {"fed.tau": []}}, "grid.fed.tau must be a non-empty list"),
-    ({"grid": {"fed.tau": [1.5]}}, "fed.tau"),
-    ({"grid": {"fed.nope": [1]}}, "nope"),
-    ({"base": "missing.yaml", "grid": {"fed.tau": [0.5]}}, "missing.yaml"),
-    ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "ddpg.gamma"}}, "thesis.by"),
-])
+@pytest.mark.parametrize(
+    "spec, match",
+    [
+        ({"grid": {"fed.tau": [0.5]}, "bogus": 1}, "unknown key"),
+        ({"grid": {"fed.tau": []}}, "grid.fed.tau must be a non-empty list"),
+        ({"grid": {"fed.tau": [1.5]}}, "fed.tau"),
+        ({"grid": {"fed.nope": [1]}}, "nope"),
+        ({"base": "missing.yaml", "grid": {"fed.tau": [0.5]}}, "missing.yaml"),
+        ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "ddpg.gamma"}}, "thesis.by"),
+    ],
+)
 def test_bad_sweep_files_name_the_key(tmp_path, spec, match):
     full = {"base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"), **spec}
     path = tmp_path / "bad.yaml"
@@ -135,8 +165,17 @@ def test_tables_hold_every_point_seed_episode_and_robot(tiny):
     out, sweep = tiny["out"], tiny["sweep"]
     res = pd.read_csv(out / "results.csv")
     assert len(res) == 6 * 2 * 2 * 5  # points x seeds x episodes x robots
-    assert {"point", "label", "fed.tau", "ddpg.buffer_size", "seed", "episode", "robot", "reward",
-            "reached_goal"} <= set(res.columns)
+    assert {
+        "point",
+        "label",
+        "fed.tau",
+        "ddpg.buffer_size",
+        "seed",
+        "episode",
+        "robot",
+        "reward",
+        "reached_goal",
+    } <= set(res.columns)
     summ = pd.read_csv(out / "summary.csv")
     assert list(summ["point"]) == [p.id for p in sweep.points] and (summ["seeds"] == 2).all()
     assert np.isfinite(summ[["success_last", "reward_last"]].to_numpy()).all()
@@ -172,7 +211,7 @@ def test_each_grid_point_equals_the_config_trained_alone(tiny, tmp_path):
 def test_a_finished_sweep_trains_nothing_again(tiny):
     sweep, out = tiny["sweep"], tiny["out"]
     stamps = {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in sweep.points}
-    _, stats = sw.run_sweep(sweep, out, progress=False, echo=lambda s: None)
+    _, stats = run_sweep(sweep, out, progress=False, echo=lambda s: None)
     assert stats["skipped"] == 6 and stats["groups"] == []
     assert stamps == {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in sweep.points}
 
@@ -203,17 +242,20 @@ def test_a_killed_sweep_resumes_without_recomputing_finished_points(tiny, tmp_pa
 
     monkeypatch.setattr(sw.Compiled, "__post_init__", dying)
     with pytest.raises(KeyboardInterrupt):
-        sw.run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
+        run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
     monkeypatch.setattr(sw.Compiled, "__post_init__", real_post_init)
     done = [p for p in sweep.points if (out / "points" / p.id / "summary.json").exists()]
     assert len(done) == 3 and any((out / "batches").iterdir())
     stamps = {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in done}
 
-    _, stats = sw.run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
+    _, stats = run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
     assert stats["skipped"] == 3 and stats["groups"][0]["jobs"] == 3
     assert stamps == {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in done}
-    resumed = [json.loads((out / "points" / p.id / "summary.json").read_text())["resumed_from_episode"]
-               for p in sweep.points if p not in done]
+    resumed = [
+        json.loads((out / "points" / p.id / "summary.json").read_text())["resumed_from_episode"]
+        for p in sweep.points
+        if p not in done
+    ]
     assert resumed == [1, 1, 1]
     for p in sweep.points:
         a, b = _run_metrics(out / "points" / p.id), _run_metrics(tiny["out"] / "points" / p.id)
@@ -259,14 +301,22 @@ def test_a_sweep_spread_over_two_devices_matches_one(tiny, tmp_path):
     import subprocess
     import sys
 
-    script = ("import json, sys\nfrom fedjax_nav import sweep as sw\n"
-              "s = sw.load_sweep(sys.argv[1])\n"
-              "_, st = sw.run_sweep(s, sys.argv[2], progress=False, echo=lambda x: None)\n"
-              "print(json.dumps(st))\n")
+    script = (
+        "import json, sys\nfrom fedjax_nav.experiments.sweeps import run_sweep\n"
+        "from fedjax_nav.training import sweep as sw\n"
+        "s = sw.load_sweep(sys.argv[1])\n"
+        "_, st = run_sweep(s, sys.argv[2], progress=False, echo=lambda x: None)\n"
+        "print(json.dumps(st))\n"
+    )
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
     out = tmp_path / "two"
-    r = subprocess.run([sys.executable, "-c", script, str(tiny["folder"] / "tiny.yaml"), str(out)], env=env,
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-c", script, str(tiny["folder"] / "tiny.yaml"), str(out)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     stats = json.loads(r.stdout.strip().splitlines()[-1])
     assert stats["devices"] == 2 and stats["groups"][0]["traces"] == 1 and stats["groups"][0]["batch_rows"] == 12
@@ -276,3 +326,72 @@ def test_a_sweep_spread_over_two_devices_matches_one(tiny, tmp_path):
             np.testing.assert_array_equal(a[k], b[k], err_msg=f"{p.label} {k}")
         for k in ("reward", "critic_loss", "q"):
             np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, err_msg=f"{p.label} {k}")
+
+
+# ----------------------------------------------------------------------------- traced really means traced
+
+
+@pytest.mark.parametrize(
+    "grid", [{"env.v_max": [0.15, 0.25]}, {"env.collision_distance": [0.2, 2.0]}], ids=lambda g: next(iter(g))
+)
+def test_a_sweep_over_an_env_constant_compiles_once(grid, tmp_path):
+    """env.* fields marked traced are HParams, not constants of the program: one group, one trace,
+    and the value reaches the env (the points' rewards differ)."""
+    sweep = sw.load_sweep(write_sweep(tmp_path, "env", grid=grid, seeds=1))
+    assert len(sw.plan(sw.merge_jobs(sweep.points), budget=2**40)) == 1
+    _, stats = run_sweep(sweep, tmp_path / "out", progress=False, echo=lambda s: None)
+    assert [g["traces"] for g in stats["groups"]] == [1]
+    frames = [pd.read_csv(tmp_path / "out" / "points" / p.id / "metrics.csv") for p in sweep.points]
+    col = "collisions" if "env.collision_distance" in grid else "reward"
+    assert not np.allclose(frames[0][col], frames[1][col])
+
+
+def test_every_traced_field_is_an_input_the_program_uses():
+    """For each field declared traced: it is an HParams leaf, it is excluded from the static group
+    key, and the jitted chunk's program reads it (an HParams leaf the program ignored, e.g. because
+    the trainer closed over the config's value instead, would be dead in the jaxpr)."""
+    from fedjax_nav.config import load_config, traced_fields
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
+
+    cfg = load_config(ROOT / "configs" / "thesis" / "pwddpg.yaml", TINY_SET + ["run.episodes=1"])
+    hp = hparams_from_config(cfg)
+    assert set(hp) == set(traced_fields()) and len(hp) >= 19
+    assert not set(json.loads(sw.group_key(cfg))) & set(traced_fields())
+
+    def unused_by(cfg):
+        tr = Trainer(cfg)
+
+        def init_and_train(h):  # epsilon_start only acts at init
+            states = jax.vmap(lambda k: tr.init(k, h))(jax.random.split(jax.random.key(0), 1))
+            return tr.chunk(states, h, jax.numpy.int32(0), 1)
+
+        closed = jax.make_jaxpr(init_and_train)(hp)
+        names = sorted(hp)  # dict pytrees flatten in key order
+        hp_vars = closed.jaxpr.invars
+        used = {v for eqn in closed.jaxpr.eqns for v in eqn.invars if hasattr(v, "aval") and not hasattr(v, "val")}
+        return {n for n, v in zip(names, hp_vars) if v not in used}
+
+    # PWDDPG with an episode period: fed.period, tau and beta all act; the robust aggregators'
+    # options and the attack's scale act when they are selected: every field must be read by one
+    unused = unused_by(cfg)
+    robust = {"fed.trim": "trimmed_mean", "fed.krum_f": "krum", "fed.krum_m": "krum", "fed.max_norm": "norm_bounded"}
+    for agg in sorted(set(robust.values())):
+        extra = [f"fed.aggregator={agg}", "fed.byzantine=1", "fed.attack=scale"]
+        unused &= unused_by(
+            load_config(ROOT / "configs" / "thesis" / "flddpg.yaml", TINY_SET + ["run.episodes=1"] + extra)
+        )
+    # the robot model's fields act when a model other than the ideal one is selected
+    unused &= unused_by(
+        load_config(
+            ROOT / "configs" / "thesis" / "flddpg.yaml", TINY_SET + ["run.episodes=1", "robot.model=turtlebot3_burger"]
+        )
+    )
+    # env.room_every acts in a run on procedural rooms (docs/generalization.md)
+    unused &= unused_by(
+        load_config(
+            ROOT / "configs" / "thesis" / "flddpg.yaml",
+            TINY_SET + ["run.episodes=1", "env.rooms=procedural", "env.room_families=[cylinders]"],
+        )
+    )
+    assert not unused, f"traced fields the program never reads: {sorted(unused)}"

@@ -9,6 +9,7 @@ module (the `run_*` caches below) and every test that can reads the same runs:
 - one episode of each other thesis config (GSDDPG with a step period T_update = 6 over 2 episodes);
 - configs/paper/flddpg.yaml through `fedjax-nav train` in the CLI test.
 """
+
 from functools import partial
 from pathlib import Path
 
@@ -31,8 +32,14 @@ PAPER = ROOT / "configs" / "paper" / "flddpg.yaml"
 T = 16
 ROBOTS = 5
 # Small settings for every shipped config (the paper's 512-wide nets included).
-TINY = [f"env.episode_length={T}", "run.chunk_episodes=1", "ddpg.batch_size=8", "ddpg.buffer_size=64",
-        "ddpg.hidden=16", "run.checkpoint_every=0"]
+TINY = [
+    f"env.episode_length={T}",
+    "run.chunk_episodes=1",
+    "ddpg.batch_size=8",
+    "ddpg.buffer_size=64",
+    "ddpg.hidden=16",
+    "run.checkpoint_every=0",
+]
 # Per config: extra overrides and the number of episodes (one, with a federated step in it).
 EXTRA = {
     "iddpg": ([], 1),
@@ -96,7 +103,9 @@ def run_thesis(name: str) -> Run:
     if name not in _RUNS:
         extra, episodes = EXTRA[name]
         seeds = [0, 1] if name == "flddpg" else [0]
-        cfg = load_config(THESIS / f"{name}.yaml", TINY + extra + [f"run.episodes={episodes}", f"run.seeds={len(seeds)}"])
+        cfg = load_config(
+            THESIS / f"{name}.yaml", TINY + extra + [f"run.episodes={episodes}", f"run.seeds={len(seeds)}"]
+        )
         _RUNS[name] = Run(cfg, seeds, count_traces=(name == "flddpg"))
     return _RUNS[name]
 
@@ -137,14 +146,22 @@ def test_every_thesis_config_trains_with_finite_metrics(name):
 
 def test_every_method_has_its_structure():
     expect = {  # n_nets, n_bufs
-        "iddpg": (5, 5), "seddpg": (5, 1), "snddpg": (1, 1), "flddpg": (5, 5),
-        "pwddpg": (5, 5), "rwddpg": (5, 5), "gsddpg": (5, 5), "flsddpg": (5, 5),
+        "iddpg": (5, 5),
+        "seddpg": (5, 1),
+        "snddpg": (1, 1),
+        "flddpg": (5, 5),
+        "pwddpg": (5, 5),
+        "rwddpg": (5, 5),
+        "gsddpg": (5, 5),
+        "flsddpg": (5, 5),
     }
     for name, (nets, bufs) in expect.items():
         cfg = load_config(THESIS / f"{name}.yaml", TINY)
         tr = Trainer(cfg)
         assert (tr.n_nets, tr.n_bufs) == (nets, bufs), name
-        assert bool(np.all(np.asarray(tr.env_params(hparams_from_config(cfg)).random_starts))) == (name == "flsddpg"), name
+        assert bool(np.all(np.asarray(tr.env_params(hparams_from_config(cfg)).random_starts))) == (name == "flsddpg"), (
+            name
+        )
 
 
 # ----------------------------------------------------------------------------- SEDDPG / SNDDPG
@@ -190,8 +207,8 @@ def test_independent_networks_act_each_for_their_robot():
     state = seed_slice(r.states, 0).replace(epsilon=jnp.float32(0.0))
     actions = np.asarray(jax.jit(tr._act)(state, jax.random.key(3)))
     for k in range(ROBOTS):
-        own = jax.tree.map(lambda p: p[k], state.agents.actor)
-        other = jax.tree.map(lambda p: p[(k + 1) % ROBOTS], state.agents.actor)
+        own = jax.tree.map(lambda p, k=k: p[k], state.agents.actor)
+        other = jax.tree.map(lambda p, k=k: p[(k + 1) % ROBOTS], state.agents.actor)
         np.testing.assert_allclose(actions[k], np.asarray(ddpg.act(tr.nets, own, state.obs[k])), rtol=1e-5, atol=1e-6)
         assert not np.allclose(actions[k], np.asarray(ddpg.act(tr.nets, other, state.obs[k])), atol=1e-6)
 
@@ -253,8 +270,11 @@ def test_federated_step_mixes_nets_with_the_method_weights_and_keeps_the_rest_lo
     st = _fed_state(REWARD_SUM)
     out = tr.federated_step(st, hparams_from_config(cfg))
     r = np.array(REWARD_SUM) / 20
-    w = {"flddpg": np.full(ROBOTS, 0.2), "pwddpg": np.exp(0.5 * r) / np.exp(0.5 * r).sum(),
-         "rwddpg": np.sign(r) * np.abs(r) ** 0.5 / (np.abs(r) ** 0.5).sum()}[name]
+    w = {
+        "flddpg": np.full(ROBOTS, 0.2),
+        "pwddpg": np.exp(0.5 * r) / np.exp(0.5 * r).sum(),
+        "rwddpg": np.sign(r) * np.abs(r) ** 0.5 / (np.abs(r) ** 0.5).sum(),
+    }[name]
     for net in ("actor", "critic"):
         for got, ref in zip(jax.tree.leaves(getattr(out.agents, net)), _np_mix(getattr(st.agents, net), w, 0.5)):
             np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-5, atol=1e-6)
@@ -270,22 +290,28 @@ def test_federated_step_include_targets_averages_the_targets_too():
     st = _fed_state(REWARD_SUM)
     out = tr.federated_step(st, hparams_from_config(cfg))
     for name in ("actor", "critic", "actor_targ", "critic_targ"):
-        for got, ref in zip(jax.tree.leaves(getattr(out.agents, name)), _np_mix(getattr(st.agents, name), np.full(ROBOTS, 0.2), 1.0)):
+        for got, ref in zip(
+            jax.tree.leaves(getattr(out.agents, name)), _np_mix(getattr(st.agents, name), np.full(ROBOTS, 0.2), 1.0)
+        ):
             np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-5, atol=1e-6)
     assert tree_equal((out.agents.actor_opt, out.agents.critic_opt), (st.agents.actor_opt, st.agents.critic_opt))
 
 
 @pytest.mark.parametrize("include_targets", [False, True])
 def test_gs_federated_step_moves_the_global_model_and_every_client_to_it(include_targets):
-    cfg = load_config(THESIS / "gsddpg.yaml", TINY + ["fed.beta=0.5", f"fed.include_targets={str(include_targets).lower()}"])
+    cfg = load_config(
+        THESIS / "gsddpg.yaml", TINY + ["fed.beta=0.5", f"fed.include_targets={str(include_targets).lower()}"]
+    )
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
     nets = {"actor": st.agents.actor, "critic": st.agents.critic}
     prev = jax.tree.map(lambda x: x + 1.0, agg.init_global(nets))  # a global model != the clients' mean
     st = st.replace(agg_state=prev)
     out = tr.federated_step(st, hparams_from_config(cfg))
-    ref = [0.5 * np.asarray(p, np.float64) + 0.5 * np.asarray(c, np.float64).mean(0)
-           for p, c in zip(jax.tree.leaves(prev), jax.tree.leaves(nets))]
+    ref = [
+        0.5 * np.asarray(p, np.float64) + 0.5 * np.asarray(c, np.float64).mean(0)
+        for p, c in zip(jax.tree.leaves(prev), jax.tree.leaves(nets))
+    ]
     for got, want in zip(jax.tree.leaves(out.agg_state), ref):
         np.testing.assert_allclose(np.asarray(got), want, rtol=1e-5, atol=1e-6)
     clients = {"actor": out.agents.actor, "critic": out.agents.critic}
@@ -378,8 +404,9 @@ def test_cli_train_end_to_end_on_the_paper_config(tmp_path, capsys):
     cfg_path = tmp_path / "tiny.yaml"
     cfg_path.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
-    rc = cli.main(["train", "--config", str(cfg_path), "--out", str(out), "--seeds", "2", "--quiet",
-                   "--set", "ddpg.gamma=0.8"])
+    rc = cli.main(
+        ["train", "--config", str(cfg_path), "--out", str(out), "--seeds", "2", "--quiet", "--set", "ddpg.gamma=0.8"]
+    )
     assert rc == 0, capsys.readouterr().err
     for f in ("config.yaml", "metrics.csv", "summary.json", "params.npz", "learning_curves.png"):
         assert (out / f).is_file() and (out / f).stat().st_size > 0, f
@@ -412,3 +439,18 @@ def test_cli_train_end_to_end_on_the_paper_config(tmp_path, capsys):
     assert kernels and all(params[k].shape[:2] == (2, robots) for k in kernels)
     assert any(k.startswith("critic/") for k in params.files)
     assert (out / "learning_curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_new_episode_metric_is_one_line_in_the_table(monkeypatch):
+    """Per-step values leave the step scan; EPISODE_METRICS reduces them. A metric added there
+    (and nowhere else) comes out of the chunk, reduced over the episode's steps."""
+    from fedjax_nav.training import trainer as trainer_module
+
+    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps_at_goal", lambda m: jnp.sum(m.goals > 0, 0))
+    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps", lambda m: jnp.int32(m.reward.shape[0]))
+    cfg = load_config(THESIS / "iddpg.yaml", TINY)
+    tr, hp = Trainer(cfg), hparams_from_config(cfg)
+    states = tr.init_seeds(jnp.arange(1), hp)
+    _, m = jax.jit(lambda s, h: tr.chunk(s, h, jnp.int32(0), 1))(states, hp)
+    assert np.all(np.asarray(m["steps"]) == T)
+    np.testing.assert_array_equal(np.asarray(m["steps_at_goal"]), np.asarray(m["goals"]))

@@ -1,4 +1,5 @@
 """Playgrounds as data: the shipped worlds, building, padding and stacking, and bad world files."""
+
 import json
 import math
 
@@ -69,10 +70,18 @@ def test_shipped_world_loads_with_collision_free_starts_and_free_goals(name):
 
 
 def test_shipped_worlds_match_the_scenario():
-    """Sizes and starts per SCENARIO.md 1: the 6x6 rooms with 3 starts (room 1, which the thesis
-    dropped, with its one start), the 10x10 rooms with 4, the 12x12 arena with 4 corner goals."""
-    expected = {"train-0": (6, 3), "train-1": (6, 1), "train-2": (6, 3), "train-3": (10, 4),
-                "train-4": (10, 4), "train-5": (10, 4), "eval": (12, 1)}
+    """Sizes and starts per the thesis's playgrounds (docs/worlds.md): the 6x6 rooms with 3 starts
+    (room 1, which the thesis dropped, with its one start), the 10x10 rooms with 4, the 12x12
+    arena with 4 corner goals."""
+    expected = {
+        "train-0": (6, 3),
+        "train-1": (6, 1),
+        "train-2": (6, 3),
+        "train-3": (10, 4),
+        "train-4": (10, 4),
+        "train-5": (10, 4),
+        "eval": (12, 1),
+    }
     assert set(expected) == set(worlds.SHIPPED)
     for name, (side, n_starts) in expected.items():
         w = worlds.load(name)
@@ -103,9 +112,14 @@ def test_load_by_path_equals_load_by_name(tmp_path):
 
 
 def test_boxes_walls_and_segments_become_segments():
-    spec = {"size": [4.0, 2.0], "boxes": [[1.0, 0.0, 0.4, 0.2, math.pi / 2]],
-            "segments": [[-1.5, -0.5, -1.5, 0.5]], "circles": [[-0.5, 0.5, 0.2]],
-            "starts": [[0.0, 0.0, 0.0]], "goals": [[1.5, -0.8]]}
+    spec = {
+        "size": [4.0, 2.0],
+        "boxes": [[1.0, 0.0, 0.4, 0.2, math.pi / 2]],
+        "segments": [[-1.5, -0.5, -1.5, 0.5]],
+        "circles": [[-0.5, 0.5, 0.2]],
+        "starts": [[0.0, 0.0, 0.0]],
+        "goals": [[1.5, -0.8]],
+    }
     w, meta = worlds.from_dict(spec, "inline")
     segs = np.asarray(w.segments, np.float64)
     assert segs.shape == (4 + 1 + 4, 4)
@@ -119,8 +133,7 @@ def test_boxes_walls_and_segments_become_segments():
     np.testing.assert_allclose(segs[5:, 2:], np.roll(segs[5:, :2], -1, axis=0), atol=1e-12)
     # yaw turns counter-clockwise: corners (+-sx/2, +-sy/2) rotated by exp(i yaw) about the centre.
     cx, cy, sx, sy, yaw = 0.5, -0.2, 0.8, 0.3, 0.3
-    corners = [complex(cx, cy) + complex(a * sx / 2, b * sy / 2) * np.exp(1j * yaw)
-               for a in (-1, 1) for b in (-1, 1)]
+    corners = [complex(cx, cy) + complex(a * sx / 2, b * sy / 2) * np.exp(1j * yaw) for a in (-1, 1) for b in (-1, 1)]
     got = worlds.box_segments(cx, cy, sx, sy, yaw)[:, :2]
     assert sorted(map(tuple, np.round(got, 9))) == sorted((round(z.real, 9), round(z.imag, 9)) for z in corners)
     np.testing.assert_allclose(np.asarray(w.circles), [[-0.5, 0.5, 0.2]])
@@ -152,8 +165,13 @@ def test_pad_and_stack():
 
 # ----------------------------------------------------------------------------- bad world files
 
-GOOD = {"size": [4.0, 4.0], "boxes": [[1.0, 1.0, 0.6, 0.6, 0.0]], "circles": [[-1.0, 1.0, 0.3]],
-        "starts": [[0.0, -1.0, 0.0]], "goals": [[-1.0, -1.0]]}
+GOOD = {
+    "size": [4.0, 4.0],
+    "boxes": [[1.0, 1.0, 0.6, 0.6, 0.0]],
+    "circles": [[-1.0, 1.0, 0.3]],
+    "starts": [[0.0, -1.0, 0.0]],
+    "goals": [[-1.0, -1.0]],
+}
 
 
 def _with(**changes):

@@ -6,6 +6,7 @@
 Adam without a built-in learning rate (`optax.scale_by_adam`), so that the learning rate is a
 traced hyperparameter: updates are scaled by `-lr` here.
 """
+
 from __future__ import annotations
 
 import jax
@@ -46,7 +47,7 @@ def init_agent(nets: Nets, key: jax.Array, obs_size: int, action_size: int = 2) 
     obs, act = jnp.zeros((obs_size,)), jnp.zeros((action_size,))
     actor = nets.actor.init(ka, obs)
     critic = nets.critic.init(kc, obs, act)
-    # Targets are copies, not aliases: donated buffers must be distinct (STACK-NOTES).
+    # Targets are copies, not aliases: XLA refuses to donate one buffer twice (jit donates the state).
     copy = lambda t: jax.tree.map(jnp.copy, t)  # noqa: E731
     return AgentState(actor, critic, copy(actor), copy(critic), _ADAM.init(actor), _ADAM.init(critic))
 

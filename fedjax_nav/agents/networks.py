@@ -1,10 +1,11 @@
-"""Actor and critic (flax linen), as in SCENARIO.md section 3.
+"""Actor and critic (flax linen), as the thesis describes them (docs/decisions.md, "action units").
 
 Actor: obs -> depth x Dense(hidden) + activation -> two 1-d heads, sigmoid (v) and tanh (omega),
 Xavier-uniform initialised. The output is in the env's action units, (v / v_max, omega / omega_max)
 in [0, 1] x [-1, 1]; the env rescales to m/s and rad/s.
 Critic: concat(obs, action) -> depth x Dense(hidden) + activation -> Dense(1).
 """
+
 from __future__ import annotations
 
 import flax.linen as nn

@@ -1,10 +1,14 @@
 """Figures of learning curves (matplotlib, Agg)."""
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from fedjax_nav import rundir
+from fedjax_nav.rundir import save_figure  # noqa: F401  (figures are saved atomically, by the run directory's owner)
 
 
 def moving_average(x, n: int = 10) -> np.ndarray:
@@ -18,9 +22,9 @@ def moving_average(x, n: int = 10) -> np.ndarray:
 
 def per_episode(df: pd.DataFrame) -> pd.DataFrame:
     """Success proportion and mean reward per (seed, episode): the thesis's learning metrics."""
-    return (df.groupby(["seed", "episode"])
-              .agg(success=("reached_goal", "mean"), reward=("reward", "mean"))
-              .reset_index())
+    return (
+        df.groupby(["seed", "episode"]).agg(success=("reached_goal", "mean"), reward=("reward", "mean")).reset_index()
+    )
 
 
 def curves(df: pd.DataFrame, metric: str, window: int = 10) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -29,16 +33,6 @@ def curves(df: pd.DataFrame, metric: str, window: int = 10) -> tuple[np.ndarray,
     table = pe.pivot(index="episode", columns="seed", values=metric).sort_index()
     smooth = np.stack([moving_average(table[c].to_numpy(), window) for c in table.columns], axis=1)
     return table.index.to_numpy(), smooth.mean(1), smooth.std(1)
-
-
-def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
-    """Save a matplotlib Figure atomically (temporary file, then rename): a reader never sees a
-    half-written PNG."""
-    from fedjax_nav.training.run import atomic_write
-
-    path = Path(path)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png"))
-    return path
 
 
 def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -> Path:
@@ -55,12 +49,28 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
     for label, df in runs.items():
         for ax, metric, name in zip(axes, ["success", "reward"], ["success proportion", "mean reward per step"]):
             ep, mu, sd = curves(df, metric, window)
-            line, = ax.plot(ep + 1, mu, label=label or None)
+            (line,) = ax.plot(ep + 1, mu, label=label or None)
             ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.2, color=line.get_color())
             ax.set_xlabel("episode")
             ax.set_ylabel(f"{name} ({window}-ep SMA)")
             ax.grid(alpha=0.3)
-    if any(runs):
+    for label, df in runs.items():  # run.eval_every: greedy success on the held-out probe, beside training success
+        if "eval_success" in df and df["eval_success"].notna().any():
+            ev = df.dropna(subset=["eval_success"]).groupby(["seed", "episode"])["eval_success"].mean()
+            ev = ev.groupby("episode").agg(["mean", "std"]).fillna(0.0)
+            x = ev.index.to_numpy() + 1
+            name = f"{label + ': ' if label else ''}held-out probe (greedy)"
+            (line,) = axes[0].plot(x, ev["mean"], "o--", ms=3, label=name)
+            axes[0].fill_between(x, ev["mean"] - ev["std"], ev["mean"] + ev["std"], alpha=0.15, color=line.get_color())
+    if any(runs) or any("eval_success" in df for df in runs.values()):
         axes[0].legend(fontsize=8)
     fig.suptitle(title)
     return save_figure(fig, path)
+
+
+def draw_run(run: str | Path) -> Path:
+    """learning_curves.png of a training run directory, from its metrics.csv and config."""
+    cfg = rundir.read_config(run)
+    return learning_curves(
+        rundir.read_metrics(run), Path(run) / rundir.CURVES, title=f"{cfg.method}, {cfg.run.seeds} seeds"
+    )

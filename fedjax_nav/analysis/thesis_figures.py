@@ -6,6 +6,7 @@ pictures from the same files.
     summary: one row per grid point (summary.csv)
     evals:   one row per evaluated run (eval_summary.csv of the report)
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -25,8 +26,9 @@ def _fig(w: float, h: float, ncols: int = 1):
     return fig, fig.subplots(1, ncols)
 
 
-def learning_figure(runs: dict, path: str | Path, metric: str = "success", title: str = "",
-                    dotted: dict | None = None, window: int = 10) -> Path:
+def learning_figure(
+    runs: dict, path: str | Path, metric: str = "success", title: str = "", dotted: dict | None = None, window: int = 10
+) -> Path:
     """Fig. 11, 12, 14, 15, 16, 19: the 10-episode SMA of `metric` per label, mean over seeds with
     a band of one std; `dotted` runs (references) as dotted lines without bands."""
     fig, ax = _fig(7.5, 4.0)
@@ -36,7 +38,7 @@ def learning_figure(runs: dict, path: str | Path, metric: str = "success", title
         ax.set_prop_cycle(color=colormaps["tab20"].colors)
     for label, df in runs.items():
         ep, mu, sd = curves(df, metric, window)
-        line, = ax.plot(ep + 1, mu, label=f"{label} ({df['seed'].nunique()} seeds)")
+        (line,) = ax.plot(ep + 1, mu, label=f"{label} ({df['seed'].nunique()} seeds)")
         ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.15, color=line.get_color())
     for label, df in (dotted or {}).items():
         ep, mu, _ = curves(df, metric, window)
@@ -51,8 +53,9 @@ def learning_figure(runs: dict, path: str | Path, metric: str = "success", title
     return save_figure(fig, path)
 
 
-def bars_figure(labels, means, stds, path: str | Path, ylabel: str, title: str = "",
-                thesis: list | None = None) -> Path:
+def bars_figure(
+    labels, means, stds, path: str | Path, ylabel: str, title: str = "", thesis: list | None = None
+) -> Path:
     """Fig. 13-style bars of one number per setting (mean and std over seeds), with the thesis's
     value as a marker where it printed one."""
     fig, ax = _fig(max(5.0, 0.7 * len(labels) + 2), 3.6)
@@ -71,13 +74,21 @@ def bars_figure(labels, means, stds, path: str | Path, ylabel: str, title: str =
     return save_figure(fig, path)
 
 
-EVAL_PANELS = [("success", "success_seed_std", "success rate"),
-               ("time_mean", "time_std", "time to goal (s)\n(successful runs)"),
-               ("efficiency_mean", "efficiency_std", "trajectory efficiency\n(successful runs)")]
+EVAL_PANELS = [
+    ("success", "success_seed_std", "success rate"),
+    ("time_mean", "time_std", "time to goal (s)\n(successful runs)"),
+    ("efficiency_mean", "efficiency_std", "trajectory efficiency\n(successful runs)"),
+]
 
 
-def eval_figure(evals: pd.DataFrame, path: str | Path, title: str = "", reference: pd.DataFrame | None = None,
-                panels=EVAL_PANELS, thesis: pd.DataFrame | None = None) -> Path:
+def eval_figure(
+    evals: pd.DataFrame,
+    path: str | Path,
+    title: str = "",
+    reference: pd.DataFrame | None = None,
+    panels=EVAL_PANELS,
+    thesis: pd.DataFrame | None = None,
+) -> Path:
     """Fig. 17, 18, 20: bars per method (evals rows: label + the panel columns); `reference` rows
     are drawn as dotted horizontal lines (Fig. 20's FLDDPG and SNDDPG); `thesis` (label + the
     same columns) as red markers."""
@@ -95,7 +106,7 @@ def eval_figure(evals: pd.DataFrame, path: str | Path, title: str = "", referenc
             t = thesis.set_index("label").reindex(evals["label"])[col].to_numpy(float)
             if np.isfinite(t).any():
                 ax.plot(x, t, "D", color="#d62728", label="thesis")
-        for _, r in (reference.iterrows() if reference is not None else []):
+        for _, r in reference.iterrows() if reference is not None else []:
             if np.isfinite(r[col]):
                 line = ax.axhline(r[col], ls=":", lw=1.5, color="gray")
                 ax.annotate(r["label"], (x[-1] + 0.4, r[col]), fontsize=6, color=line.get_color(), va="bottom")

@@ -1,4 +1,5 @@
 """The 2D navigation simulator: geometry, kinematics, reward, reset/step (and adapters)."""
+
 from fedjax_nav.env.geometry import beam_angles, lidar, nearest_distance
 from fedjax_nav.env.nav import EnvParams, EnvState, NavEnv, make_params, unicycle
 

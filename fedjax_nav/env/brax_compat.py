@@ -18,6 +18,7 @@ brax no longer needs it.
 
 This module does not import brax (importing brax prints a "Failed to import warp" line).
 """
+
 from __future__ import annotations
 
 from typing import Any, Sequence
@@ -41,9 +42,7 @@ def device_put_replicated(x: Any, devices: Sequence[jax.Device]) -> Any:
     and brax's `_unpmap` (`x.addressable_shards[0].data.squeeze(0)`) exactly as before.
     """
     if isinstance(devices, (str, bytes)) or not isinstance(devices, Sequence) or len(devices) == 0:
-        raise ValueError(
-            "`devices` argument to `device_put_replicated` must be a non-empty sequence of devices"
-        )
+        raise ValueError("`devices` argument to `device_put_replicated` must be a non-empty sequence of devices")
     devices = list(devices)
     n = len(devices)
     sharding = NamedSharding(Mesh(np.array(devices), (_AXIS,)), PartitionSpec(_AXIS))

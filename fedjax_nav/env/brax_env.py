@@ -11,6 +11,11 @@ import warp" line, so keep it out of everything else; import this module lazily)
     env = BraxNavEnv(["train-0", "train-2"])  # no own time limit: ppo's EpisodeWrapper has it
     make_policy, params, metrics = ppo.train(env, num_timesteps=..., episode_length=1024, ...)
 
+Importing this module registers the env with brax's registry as `"fedjax_nav"` (`ENV_NAME`), so
+`brax.envs.get_environment("fedjax_nav", worlds=[...], **kwargs)` builds a `BraxNavEnv` and
+`brax.envs.create("fedjax_nav", episode_length=..., batch_size=..., **kwargs)` wraps it in brax's
+training wrappers, as for brax's own environments.
+
 Semantics (those of `NavEnv(mode="eval")`):
 - `reset(rng)` picks a playground uniformly at random (or the fixed `playground`), puts the robot
   at its start and returns a `State` whose `pipeline_state` is a `NavPipelineState` (the
@@ -41,13 +46,15 @@ number of playgrounds, or `random_starts`, for variety.
 Keys: brax's wrappers expect old-style `jax.random.PRNGKey` keys (uint32[2]); `reset` also takes a
 new-style typed key when used unwrapped.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence, Union
+from typing import Any, Sequence, Union
 
 import jax
 import jax.numpy as jnp
+from brax import envs as brax_envs
 from brax.envs.base import Env, State
 from flax import struct
 
@@ -55,6 +62,8 @@ from fedjax_nav.env.nav import EnvParams, EnvState, NavEnv, make_params
 from fedjax_nav.worlds import World, load_many, stack
 
 WorldsLike = Union[str, Path, Sequence[Union[str, Path]], World]
+
+ENV_NAME = "fedjax_nav"  # the name in brax's environment registry
 
 # "No time limit": NavEnv counts steps in int32; this is never reached in practice.
 _NO_LIMIT = 2**30
@@ -95,7 +104,10 @@ class BraxNavEnv(Env):
       playground: None to draw a playground uniformly at each reset, or a fixed index.
       episode_length: the env's own time limit in steps; None (default) for none, which is what
         brax's trainers want (they add an EpisodeWrapper with their `episode_length`).
-      num_beams, max_range, collision_test, noise: as in `NavEnv`.
+      num_beams: lidar beams, as in `NavEnv`.
+      max_range: lidar range in m, as in `NavEnv`.
+      collision_test: "exact" or "lidar", as in `NavEnv`.
+      noise: sensor and actuation noise on, as in `NavEnv`.
       **param_overrides: `EnvParams` fields (e.g. `goal_index=1`, `random_starts=True`,
         `v_max=0.3`), scalars or arrays with one entry per playground.
     """
@@ -110,16 +122,14 @@ class BraxNavEnv(Env):
         max_range: float = 3.5,
         collision_test: str = "exact",
         noise: bool = False,
-        **param_overrides,
+        **param_overrides: Any,
     ):
         world = _as_stacked_world(worlds)
         self.num_playgrounds = int(world.segments.shape[0])
         if playground is not None:
             playground = int(playground)
             if not 0 <= playground < self.num_playgrounds:
-                raise ValueError(
-                    f"playground must be None or in [0, {self.num_playgrounds - 1}], got {playground}"
-                )
+                raise ValueError(f"playground must be None or in [0, {self.num_playgrounds - 1}], got {playground}")
         if episode_length is not None and int(episode_length) < 1:
             raise ValueError(f"episode_length must be None or >= 1, got {episode_length}")
         self.playground = playground
@@ -193,3 +203,15 @@ class BraxNavEnv(Env):
             metrics=metrics,
             info=new_info,
         )
+
+
+def register() -> None:
+    """Register `BraxNavEnv` in brax's environment registry as `ENV_NAME` (done on import).
+
+    `brax.envs.get_environment(ENV_NAME, **kwargs)` then calls `BraxNavEnv(**kwargs)`
+    (`worlds=...`, `playground=...`, EnvParams overrides, ...). Registering again is harmless.
+    """
+    brax_envs.register_environment(ENV_NAME, BraxNavEnv)
+
+
+register()

@@ -13,7 +13,20 @@ each call crosses to the host once. For speed, batch `NavEnv` with `jax.vmap` in
 - info: `goal`, `collision` (bool), `pose` (x, y, theta after the move), `clearance` (m).
 - render(): this wrapper draws nothing (`render_mode` must be None; `render()` returns None).
   Use `fedjax_nav.env.render` for pictures of rollouts.
+
+Importing this module registers the env with gymnasium as `"fedjax_nav/Nav-v0"` (`ENV_ID`);
+keyword arguments of `gymnasium.make` go to `NavGymEnv`:
+
+    import gymnasium
+    import fedjax_nav.env.gym_env  # noqa: F401  (registers fedjax_nav/Nav-v0)
+
+    env = gymnasium.make("fedjax_nav/Nav-v0", world="train-2", episode_length=512)
+
+or, without importing fedjax_nav first (gymnasium imports the module named before the colon):
+`gymnasium.make("fedjax_nav.env.gym_env:fedjax_nav/Nav-v0", world="train-2")`. No
+`max_episode_steps` is registered: the env truncates at its own `episode_length`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,6 +40,8 @@ from gymnasium import spaces
 
 from fedjax_nav import worlds
 from fedjax_nav.env.nav import NavEnv, make_params
+
+ENV_ID = "fedjax_nav/Nav-v0"
 
 
 class NavGymEnv(gymnasium.Env):
@@ -57,16 +72,18 @@ class NavGymEnv(gymnasium.Env):
         self.render_mode = None
         self.world_name = str(world)
         self.nav = NavEnv(num_beams, max_range, episode_length, mode="eval", collision_test=collision_test)
-        self.params = make_params(worlds.load(world), random_starts=random_starts, goal_index=goal_index,
-                                  **param_overrides)
+        self.params = make_params(
+            worlds.load(world), random_starts=random_starts, goal_index=goal_index, **param_overrides
+        )
         # the goal distance can never exceed the room's diagonal plus the longest possible drive
         w = self.params.world
         dmax = float(np.hypot(*np.asarray(w.size))) + float(self.params.v_max * self.params.dt) * episode_length
         low = np.array([0.0] * num_beams + [0.0, -np.pi, 0.0, -1.0], np.float32)
         high = np.array([max_range] * num_beams + [dmax, np.pi, 1.0, 1.0], np.float32)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
-        self.action_space = spaces.Box(np.array([0.0, -1.0], np.float32), np.array([1.0, 1.0], np.float32),
-                                       dtype=np.float32)
+        self.action_space = spaces.Box(
+            np.array([0.0, -1.0], np.float32), np.array([1.0, 1.0], np.float32), dtype=np.float32
+        )
         nav = self.nav
 
         def reset(key, params):
@@ -99,9 +116,27 @@ class NavGymEnv(gymnasium.Env):
         a = jnp.asarray(np.asarray(action, np.float32).reshape(2))
         out, self._state, self._key = self._step(self._key, self._state, a, self.params)
         obs, reward, term, trunc, info = jax.device_get(out)
-        info = {"goal": bool(info["goal"]), "collision": bool(info["collision"]),
-                "pose": np.asarray(info["pose"]), "clearance": float(info["clearance"])}
+        info = {
+            "goal": bool(info["goal"]),
+            "collision": bool(info["collision"]),
+            "pose": np.asarray(info["pose"]),
+            "clearance": float(info["clearance"]),
+        }
         return np.asarray(obs, np.float32), float(reward), bool(term), bool(trunc), info
 
     def render(self):
         return None
+
+
+def register() -> None:
+    """Register `NavGymEnv` with gymnasium as `ENV_ID` (done on import; a second call is a no-op).
+
+    `gymnasium.make(ENV_ID, **kwargs)` passes `kwargs` to `NavGymEnv` (world, episode_length,
+    random_starts, EnvParams overrides, ...). No `max_episode_steps`: the env's own
+    `episode_length` truncates.
+    """
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="fedjax_nav.env.gym_env:NavGymEnv")
+
+
+register()

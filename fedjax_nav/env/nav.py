@@ -11,6 +11,7 @@ network's units (v / v_max in [0, 1], omega / omega_max in [-1, 1]).
 
 Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, clipped to the box.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -19,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fedjax_nav.env import robot as rm
 from fedjax_nav.env.geometry import lidar, nearest_distance
 from fedjax_nav.worlds import World
 
@@ -43,6 +45,15 @@ class EnvParams:
     progress_scale: jax.Array = struct.field(default_factory=lambda: jnp.float32(40.0))  # R_d factor
     range_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, std
     action_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # std, action units
+    # The robot model (read only when NavEnv(robot=True); docs/robot.md). 0 = off for each.
+    accel_lin: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m/s^2, 0 = unlimited
+    accel_ang: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # rad/s^2, 0 = unlimited
+    delay_steps: jax.Array = struct.field(default_factory=lambda: jnp.int32(0))  # <= NavEnv.max_delay
+    range_resolution: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = exact
+    range_min: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, nearer reads 0
+    dropout: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # probability per sample
+    footprint: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = collision_distance
+    lidar_offset: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m ahead of the centre
 
 
 @struct.dataclass
@@ -54,6 +65,9 @@ class EnvState:
     start_index: jax.Array  # i32[] start used at the last reset
     t: jax.Array  # i32[] steps taken in this episode
     start_ranges: jax.Array  # f32[starts, beams] the noiseless scan at each start row, cast at reset
+    # (robot=True: [starts, scan_samples], the true dense scan from the lidar's position)
+    vel: jax.Array | None = None  # f32[2] executed (v, omega) in m/s, rad/s; robot=True only
+    cmd_queue: jax.Array | None = None  # f32[max_delay, 2] past commands, newest first; max_delay > 0 only
 
 
 class NavEnv:
@@ -65,8 +79,17 @@ class NavEnv:
     the one a learner bootstraps from). mode="eval": nothing is reset; the episode is over at the
     first `terminated` or `truncated` (the caller stops there).
 
-    noise=True draws Gaussian noise on ranges and executed actions with the stds in EnvParams;
-    noise=False (the default for training) draws nothing, which keeps the step cheap.
+    noise=True draws Gaussian noise on ranges and executed actions with the stds in EnvParams
+    (and, with robot=True, the lidar's dropouts); noise=False (the default for training with the
+    ideal robot) draws nothing, which keeps the step cheap.
+
+    robot=True switches the robot model on (docs/robot.md): acceleration limits, a footprint,
+    the lidar's offset, quantization and minimum range, read from EnvParams (0 = off for each);
+    `substeps` physics steps per control step; `max_delay` > 0 keeps a ring of past commands so
+    that `EnvParams.delay_steps` (traced, <= max_delay) delays them; `scan_samples` > 0 casts a
+    dense scan pooled to `num_beams` by sector minimum; `dropout_value` ("max" or "zero") is what a
+    dropped sample reads. robot=False (the default) is the thesis's ideal robot, and its program
+    is exactly the one before the robot model existed.
     """
 
     def __init__(
@@ -77,6 +100,11 @@ class NavEnv:
         mode: str = "learn",
         collision_test: str = "exact",
         noise: bool = False,
+        robot: bool = False,
+        substeps: int = 1,
+        max_delay: int = 0,
+        scan_samples: int = 0,
+        dropout_value: str = "max",
     ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -88,6 +116,15 @@ class NavEnv:
         self.mode = mode
         self.collision_test = collision_test
         self.noise = bool(noise)
+        if dropout_value not in rm.DROPOUT_VALUES:
+            raise ValueError(f"dropout_value must be one of {rm.DROPOUT_VALUES}, got {dropout_value!r}")
+        if not robot and (substeps != 1 or scan_samples):
+            raise ValueError("substeps and scan_samples need robot=True")
+        self.robot = bool(robot)
+        self.substeps = int(substeps)
+        self.max_delay = int(max_delay)
+        self.scan_samples = int(scan_samples) or self.num_beams
+        self.dropout_value = dropout_value
 
     @property
     def obs_size(self) -> int:
@@ -98,11 +135,20 @@ class NavEnv:
     # ------------------------------------------------------------------ pieces
 
     def ranges(self, pose: jax.Array, params: EnvParams) -> jax.Array:
+        """The true scan at `pose`: f32[num_beams], or with robot=True f32[scan_samples] cast from
+        the lidar's position (`observe` turns it into the observation's beams)."""
         w = params.world
+        if self.robot:
+            return lidar(
+                w.segments, rm.lidar_pose(pose, params.lidar_offset), self.scan_samples, self.max_range, w.circles
+            )
         return lidar(w.segments, pose, self.num_beams, self.max_range, w.circles)
 
     def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams) -> jax.Array:
-        if self.noise:
+        if self.robot:
+            values, invalid = rm.measure(key, ranges, params, self.max_range, self.noise, self.dropout_value)
+            ranges = rm.pool_min(values, invalid, self.num_beams, self.max_range)
+        elif self.noise:
             ranges = ranges + params.range_noise * jax.random.normal(key, ranges.shape)
             ranges = jnp.clip(ranges, 0.0, self.max_range)
         rel = state.goal - state.pose[:2]
@@ -123,6 +169,8 @@ class NavEnv:
             start_index=idx.astype(jnp.int32),
             t=t,
             start_ranges=start_ranges,
+            vel=jnp.zeros(2, jnp.float32) if self.robot else None,
+            cmd_queue=jnp.zeros((self.max_delay, 2), jnp.float32) if self.max_delay else None,
         )
 
     # ------------------------------------------------------------------ API
@@ -156,12 +204,17 @@ class NavEnv:
         k_act, k_obs, k_reset = jax.random.split(key, 3) if self.noise else (key, key, key)
         lo, hi = jnp.array([0.0, -1.0]), jnp.array([1.0, 1.0])
         a = jnp.clip(action, lo, hi)
-        a_exec = a
+        a_exec, queue = a, state.cmd_queue
+        if self.max_delay:
+            a_exec, queue = rm.delayed(a, queue, params.delay_steps)
         if self.noise:
-            a_exec = jnp.clip(a + params.action_noise * jax.random.normal(k_act, (2,)), lo, hi)
-        pose = unicycle(state.pose, a_exec[0] * params.v_max, a_exec[1] * params.omega_max, params.dt)
+            a_exec = jnp.clip(a_exec + params.action_noise * jax.random.normal(k_act, (2,)), lo, hi)
+        if self.robot:
+            pose, vel = self._move(state.pose, state.vel, a_exec, params)
+        else:
+            pose, vel = unicycle(state.pose, a_exec[0] * params.v_max, a_exec[1] * params.omega_max, params.dt), None
         dist = jnp.linalg.norm(state.goal - pose[:2])
-        moved = state.replace(pose=pose, prev_action=a, dist=dist, t=state.t + 1)
+        moved = state.replace(pose=pose, prev_action=a, dist=dist, t=state.t + 1, vel=vel, cmd_queue=queue)
 
         w = params.world
         goal = dist < params.goal_radius
@@ -171,7 +224,10 @@ class NavEnv:
             clearance = nearest_distance(w.segments, pose[:2], w.circles)
         else:  # the thesis's test: the shortest beam at the new pose
             clearance = jnp.min(ranges)
-        collision = clearance < params.collision_distance
+        if self.robot:  # the footprint, when set, replaces D_c
+            collision = clearance < jnp.where(params.footprint > 0, params.footprint, params.collision_distance)
+        else:
+            collision = clearance < params.collision_distance
         terminated = goal | collision
         final_obs = self.observe(k_obs, moved, ranges, params)
         obs = final_obs
@@ -188,6 +244,18 @@ class NavEnv:
             truncated = truncated & ~terminated
         info = {"goal": goal, "collision": collision, "pose": pose, "clearance": clearance, "final_obs": final_obs}
         return obs, moved, reward, terminated, truncated, info
+
+    def _move(self, pose: jax.Array, vel: jax.Array, a_exec: jax.Array, params: EnvParams):
+        """robot=True: `substeps` physics steps of dt / substeps; in each the executed velocities
+        move towards the command by at most accel * dt / substeps, then the unicycle integrates."""
+        h = params.dt / self.substeps
+        v_cmd, w_cmd = a_exec[0] * params.v_max, a_exec[1] * params.omega_max
+        v, w = vel[0], vel[1]
+        for _ in range(self.substeps):
+            v = rm.limit_rate(v, v_cmd, params.accel_lin, h)
+            w = rm.limit_rate(w, w_cmd, params.accel_ang, h)
+            pose = unicycle(pose, v, w, h)
+        return pose, jnp.stack([v, w])
 
 
 def unicycle(pose: jax.Array, v: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:

@@ -11,6 +11,7 @@
 No pyplot here: figures are `matplotlib.figure.Figure` objects saved with the Agg canvas, so
 importing this module never changes the user's matplotlib backend (notebooks keep theirs).
 """
+
 from __future__ import annotations
 
 import functools
@@ -114,8 +115,9 @@ def draw_world(
 
     # Outer walls: a grey band outside the inner free space (inner faces at +-size/2).
     band = 0.15
-    ax.add_patch(Rectangle((-hx - band, -hy - band), W + 2 * band, H + 2 * band,
-                           facecolor=_WALL, edgecolor="none", zorder=0))
+    ax.add_patch(
+        Rectangle((-hx - band, -hy - band), W + 2 * band, H + 2 * band, facecolor=_WALL, edgecolor="none", zorder=0)
+    )
     ax.add_patch(Rectangle((-hx, -hy), W, H, facecolor="white", edgecolor="none", zorder=0.5))
 
     segs = w["segments"]
@@ -127,7 +129,9 @@ def draw_world(
         for cx, cy, sx, sy, yaw in meta["boxes"]:
             corners = _worlds.box_segments(cx, cy, sx, sy, yaw)[:, :2]
             ax.add_patch(Polygon(corners, closed=True, facecolor=_BOX, edgecolor="black", lw=0.6, zorder=2))
-        box_segs = np.concatenate([_worlds.box_segments(*b) for b in meta["boxes"]]) if meta["boxes"] else np.zeros((0, 4))
+        box_segs = (
+            np.concatenate([_worlds.box_segments(*b) for b in meta["boxes"]]) if meta["boxes"] else np.zeros((0, 4))
+        )
         # The boxes' edges are the last rows of the World's segments; the rest are thin walls.
         lines = inner[: max(len(inner) - len(box_segs), 0)]
     else:
@@ -146,19 +150,47 @@ def draw_world(
         ax.add_patch(Circle((gx, gy), goal_radius, facecolor=_GOAL, alpha=0.25, edgecolor=_GOAL, lw=1.0, zorder=1))
         ax.plot([gx], [gy], marker="*", color=_GOAL, ms=8, zorder=4)
         if labels:
-            ax.annotate(f"G{i}", (gx, gy), xytext=(0, -11), textcoords="offset points",
-                        ha="center", va="top", fontsize=fs, color="darkgreen", zorder=5)
+            ax.annotate(
+                f"G{i}",
+                (gx, gy),
+                xytext=(0, -11),
+                textcoords="offset points",
+                ha="center",
+                va="top",
+                fontsize=fs,
+                color="darkgreen",
+                zorder=5,
+            )
     L = 0.45
     for i, (sx, sy, th) in enumerate(w["starts"]):
         ax.add_patch(Circle((sx, sy), robot_radius, facecolor="white", edgecolor=_START, lw=1.2, zorder=4))
-        ax.add_patch(FancyArrow(sx, sy, L * math.cos(th), L * math.sin(th), width=0.03,
-                                head_width=0.16, head_length=0.14, length_includes_head=True,
-                                color=_START, zorder=5))
+        ax.add_patch(
+            FancyArrow(
+                sx,
+                sy,
+                L * math.cos(th),
+                L * math.sin(th),
+                width=0.03,
+                head_width=0.16,
+                head_length=0.14,
+                length_includes_head=True,
+                color=_START,
+                zorder=5,
+            )
+        )
         if labels:
             # behind the robot, away from its arrow
-            ax.annotate(f"S{i}", (sx, sy), xytext=(-11 * math.cos(th), -11 * math.sin(th)),
-                        textcoords="offset points", ha="center", va="center", fontsize=fs,
-                        color=_START, zorder=5)
+            ax.annotate(
+                f"S{i}",
+                (sx, sy),
+                xytext=(-11 * math.cos(th), -11 * math.sin(th)),
+                textcoords="offset points",
+                ha="center",
+                va="center",
+                fontsize=fs,
+                color=_START,
+                zorder=5,
+            )
 
     ax.set_xlim(-hx - margin, hx + margin)
     ax.set_ylim(-hy - margin, hy + margin)
@@ -198,21 +230,27 @@ def draw_trajectories(
         arr = np.asarray(xy, np.float64)
         paths = [arr] if arr.ndim == 2 else list(arr)
     if mask is not None:
-        masks = [np.asarray(m, bool) for m in (mask if isinstance(mask, (list, tuple)) else
-                                              ([mask] if np.ndim(mask) == 1 else list(np.asarray(mask))))]
+        masks = [
+            np.asarray(m, bool)
+            for m in (
+                mask if isinstance(mask, (list, tuple)) else ([mask] if np.ndim(mask) == 1 else list(np.asarray(mask)))
+            )
+        ]
         if len(masks) != len(paths):
             raise ValueError(f"mask has {len(masks)} rows for {len(paths)} paths")
         paths = [p[m] for p, m in zip(paths, masks)]
-    if colors is None or isinstance(colors, str) or (np.ndim(colors) == 1 and len(colors) in (3, 4)
-                                                      and not isinstance(colors[0], str)):
+    if (
+        colors is None
+        or isinstance(colors, str)
+        or (np.ndim(colors) == 1 and len(colors) in (3, 4) and not isinstance(colors[0], str))
+    ):
         colors = [colors or _PATH] * len(paths)
     if outcomes is not None and len(outcomes) != len(paths):
         raise ValueError(f"{len(outcomes)} outcomes for {len(paths)} paths")
     for k, (p, c) in enumerate(zip(paths, colors)):
         if len(p) == 0:
             continue
-        ax.plot(p[:, 0], p[:, 1], color=c, lw=lw, alpha=alpha, zorder=3,
-                label=label if k == 0 else None)
+        ax.plot(p[:, 0], p[:, 1], color=c, lw=lw, alpha=alpha, zorder=3, label=label if k == 0 else None)
         end = outcomes[k] if outcomes is not None else None
         x, y = p[-1, 0], p[-1, 1]
         if end == "success":
@@ -283,8 +321,9 @@ def _pad_for_cache(world: World) -> World:
     return _worlds.pad(world, *dims)
 
 
-def split_episodes(world: World, poses: np.ndarray, terminated: np.ndarray,
-                   goal_radius: float = GOAL_RADIUS) -> tuple[list[np.ndarray], list[str | None]]:
+def split_episodes(
+    world: World, poses: np.ndarray, terminated: np.ndarray, goal_radius: float = GOAL_RADIUS
+) -> tuple[list[np.ndarray], list[str | None]]:
     """Cut a learn-mode rollout (start 0, goal 0) into pieces at its terminal steps.
 
     Returns the paths ([n, 2], each beginning at start 0) and their outcomes: "success",
@@ -346,8 +385,7 @@ def render_worlds(
     out.mkdir(parents=True, exist_ok=True)
 
     episodes = [
-        split_episodes(world, *random_rollout(world, steps, seed)) if steps > 0 else None
-        for world, _ in loaded
+        split_episodes(world, *random_rollout(world, steps, seed)) if steps > 0 else None for world, _ in loaded
     ]
     written: list[Path] = []
     used = {"overview"}

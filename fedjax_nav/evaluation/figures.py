@@ -9,11 +9,14 @@
 
 No pyplot: `matplotlib.figure.Figure` saved with the Agg canvas (the user's backend is untouched).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+
+from fedjax_nav import rundir
 
 _ALL = "#1f77b4"
 _BEST = "#ff7f0e"
@@ -26,9 +29,7 @@ def _figure(w: float, h: float):
 
 
 def _save(fig, path: Path, dpi: int = 100) -> Path:
-    from fedjax_nav.analysis.plots import save_figure
-
-    return save_figure(fig, path, dpi)
+    return rundir.save_figure(fig, path, dpi)
 
 
 def _num(x) -> float:
@@ -58,24 +59,40 @@ def bars(summaries: dict[str, dict], path: str | Path, per_goal: bool = False, t
         ("efficiency_mean", "efficiency_std", "trajectory efficiency\n(successful runs)", (0, 1.05)),
     ]
     for ax, (key, err, ylabel, ylim) in zip(axes, panels):
-        for j, (label, color, hatch) in enumerate([("all agents", _ALL, None),
-                                                   ("best agent per seed*", _BEST, "//")]):
+        for j, (label, color, hatch) in enumerate([("all agents", _ALL, None), ("best agent per seed*", _BEST, "//")]):
             vals = np.array([_num(g[1 + j].get(key)) for g in groups])
             if err is not None:
                 errs = np.array([_num(g[1 + j].get(err)) for g in groups])
             else:  # success: the spread over seeds (overall groups only)
                 errs = np.array([_num(g[1 + j].get("success_seed_std")) for g in groups])
-            ax.bar(x + (j - 0.5) * w, np.nan_to_num(vals), w, color=color,
-                   alpha=0.9 if j == 0 else 0.55, hatch=hatch, edgecolor="black", lw=0.5, label=label)
+            ax.bar(
+                x + (j - 0.5) * w,
+                np.nan_to_num(vals),
+                w,
+                color=color,
+                alpha=0.9 if j == 0 else 0.55,
+                hatch=hatch,
+                edgecolor="black",
+                lw=0.5,
+                label=label,
+            )
             has = np.isfinite(errs) & np.isfinite(vals)  # error bars only where there is a spread
             if has.any():
-                ax.errorbar((x + (j - 0.5) * w)[has], vals[has], yerr=errs[has], fmt="none",
-                            ecolor="black", capsize=3, lw=1)
+                ax.errorbar(
+                    (x + (j - 0.5) * w)[has], vals[has], yerr=errs[has], fmt="none", ecolor="black", capsize=3, lw=1
+                )
             if key == "success_rate":
                 for xi, v in zip(x + (j - 0.5) * w, vals):
                     if np.isfinite(v):
-                        ax.annotate(f"{v:.2f}", (xi, v), xytext=(0, 2), textcoords="offset points",
-                                    ha="center", va="bottom", fontsize=6)
+                        ax.annotate(
+                            f"{v:.2f}",
+                            (xi, v),
+                            xytext=(0, 2),
+                            textcoords="offset points",
+                            ha="center",
+                            va="bottom",
+                            fontsize=6,
+                        )
         ax.set_xticks(x, [g[0] for g in groups], fontsize=8, rotation=20 if len(groups) > 5 else 0)
         ax.set_ylabel(ylabel, fontsize=9)
         if ylim:
@@ -88,7 +105,8 @@ def bars(summaries: dict[str, dict], path: str | Path, per_goal: bool = False, t
     fig.suptitle(
         (title + "\n" if title else "")
         + f"error bars: std (success: over seeds); noise range {n['range_noise']:g} m, action {n['action_noise']:g}; "
-        "* selected on evaluation data", fontsize=8,
+        "* selected on evaluation data",
+        fontsize=8,
     )
     return _save(fig, path)
 
@@ -129,7 +147,7 @@ def _draw_paths(ax, paths, colors, outcomes):
 
 def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     """One panel per goal with every agent's attempts (a colour per agent). `ev` is a
-    `protocol.RunEvaluation`; max_agents draws only the first agents (default all)."""
+    `runs.RunEvaluation`; max_agents draws only the first agents (default all)."""
     from matplotlib import colormaps
 
     r = ev.result
@@ -154,18 +172,23 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
                 n = int(r.steps[a, gi, k]) + 1
                 paths.append(r.poses[a, gi, k, :n, :2])
                 colors.append(agent_colors[a])
-                outcomes.append("success" if r.success[a, gi, k] else
-                                "collision" if r.collision[a, gi, k] else "timeout")
+                outcomes.append(
+                    "success" if r.success[a, gi, k] else "collision" if r.collision[a, gi, k] else "timeout"
+                )
         _draw_paths(ax, paths, colors, outcomes)
         st = per_goal.get(int(r.goal_index[gi]), {})
-        ax.set_title(f"goal G{int(r.goal_index[gi])} ({r.goals[gi, 0]:g}, {r.goals[gi, 1]:g}): "
-                     f"success {st.get('success_rate', float('nan')):.2f}", fontsize=9)
+        ax.set_title(
+            f"goal G{int(r.goal_index[gi])} ({r.goals[gi, 0]:g}, {r.goals[gi, 1]:g}): "
+            f"success {st.get('success_rate', float('nan')):.2f}",
+            fontsize=9,
+        )
     for ax in axes[G:]:
         ax.set_visible(False)
     n = s["noise"]
     fig.suptitle(
         f"{s['method']} on {s['world']}: {A_draw} of {A} agent(s) x {K} attempts per goal "
         f"(colour = agent; * goal, x collision, o time-out); noise range {n['range_noise']:g} m, "
-        f"action {n['action_noise']:g}", fontsize=9,
+        f"action {n['action_noise']:g}",
+        fontsize=9,
     )
     return _save(fig, path, dpi=90)

@@ -1,4 +1,5 @@
 """Federated aggregation over stacked pytrees (`Aggregator` pairs), and communication accounting."""
+
 from fedjax_nav.federated.aggregators import AGGREGATORS, Aggregator, init_global, make
 from fedjax_nav.federated.comm import communication
 

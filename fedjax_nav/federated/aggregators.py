@@ -22,6 +22,7 @@ soft mix of Algorithm 2 except GS, which replaces the clients by its global mode
 GS's global model theta_w_prev is ordinary aggregator state (`init` sets it to the mean of the
 initial parameters). The rules are data: `AGGREGATORS` maps a config name to a constructor.
 """
+
 from __future__ import annotations
 
 from typing import Any, Callable, NamedTuple
@@ -147,13 +148,76 @@ def identity() -> Aggregator:
     return Aggregator(init=lambda params: {}, update=lambda params, rewards, state, hp, mask=None: (params, state))
 
 
-# Config name -> constructor. `fedjax_nav.methods.METHODS` names one of these per method.
+# ----------------------------------------------------------------------------- robust rules (issue 14)
+# Each: theta_w = a robust center (fedjax_nav.federated.robust) of the participants, then the
+# soft mix with tau, absent clients unchanged. The state holds the global model theta_w of the
+# last round ("reference", no client axis; init: the mean of the initial parameters): the
+# norm-bounded rule clips updates relative to it, and the attacks that need "the model the
+# clients last received" read it (`reference`).
+
+
+def robust_rule(kind: str) -> Aggregator:
+    """theta_w = robust.center(kind) over the participants (hyperparameters from hp:
+    fed.trim, fed.krum_f, fed.krum_m, fed.max_norm); theta_k <- (1 - tau) theta_k + tau theta_w."""
+    from fedjax_nav.federated import robust
+
+    if kind not in robust.CENTERS:
+        raise ValueError(f"unknown robust center {kind!r}; allowed: {', '.join(robust.CENTERS)}")
+
+    def init(params):
+        return {"reference": init_global(params)}
+
+    def update(params, rewards, state, hp, mask=None):
+        mask = _all(rewards, mask)
+        theta_w = robust.center(
+            kind,
+            params,
+            mask,
+            trim=hp["fed.trim"],
+            f=hp["fed.krum_f"],
+            m=hp["fed.krum_m"],
+            reference=state["reference"],
+            max_norm=hp["fed.max_norm"],
+        )
+        return keep_absent(mix(params, theta_w, hp["fed.tau"]), params, mask), {"reference": theta_w}
+
+    return Aggregator(init=init, update=update)
+
+
+def with_reference(inner: Aggregator) -> Aggregator:
+    """`inner` plus the global model of its last round in the state ({"inner", "reference"}),
+    for the attacks that need it with the thesis's rules. The reference is the participants'
+    mean after the round: theta_w itself for soft FedAvg (its mix keeps the mean), the mean
+    of what the participants hold for PW/RW/GS."""
+    from fedjax_nav.federated import robust
+
+    def init(params):
+        return {"inner": inner.init(params), "reference": init_global(params)}
+
+    def update(params, rewards, state, hp, mask=None):
+        mask = _all(rewards, mask)
+        new, inner_state = inner.update(params, rewards, state["inner"], hp, mask)
+        return new, {"inner": inner_state, "reference": robust.masked_mean(new, mask)}
+
+    return Aggregator(init=init, update=update)
+
+
+def reference(agg_state):
+    """The global model an aggregator's state keeps (`robust_rule`, `with_reference`), or None."""
+    return agg_state.get("reference") if isinstance(agg_state, dict) else None
+
+
+ROBUST = ("mean", "median", "trimmed_mean", "krum", "geometric_median", "norm_bounded")
+
+# Config name -> constructor. `fedjax_nav.methods.METHODS` names one of the first five per
+# method; `fed.aggregator` may name a robust rule instead.
 AGGREGATORS: dict[str, Callable[[], Aggregator]] = {
     "none": identity,
     "soft": soft,
     "pw": positive_weighting,
     "rw": real_weighting,
     "gs": global_soft,
+    **{name: (lambda name=name: robust_rule(name)) for name in ROBUST},
 }
 
 

@@ -5,13 +5,15 @@ N_comm = (N_data + N_NN) E, with per-episode counts (Table 3):
     SNDDPG: N_data = T, N_NN = ceil(T / T_train)     (transitions up, the network down per update)
     FL/GS/FLS: N_NN = 1 / E_update (or T / T_update)   PW/RW: twice that (rewards sent too)
 """
+
 from __future__ import annotations
 
 import math
 
 
-def communication(method, episodes: int, steps: int, train_every: int, batch: int,
-                  period_unit: str, period: int) -> dict:
+def communication(
+    method, episodes: int, steps: int, train_every: int, batch: int, period_unit: str, period: int
+) -> dict:
     """Per-episode N_data, N_NN and the run's N_comm (floats: the thesis rounds 62.5 up to 63)."""
     updates = math.ceil(steps / train_every)
     n_data, n_nn = 0.0, 0.0

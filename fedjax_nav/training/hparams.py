@@ -8,6 +8,7 @@ one declaration, so a field marked traced is traced everywhere. Each leaf is a s
 [rows] when a sweep batches it; `hp_axes` gives the matching vmap axes. A plain dict is a
 pytree, so jit, vmap, shardings and checkpoints take it as it is.
 """
+
 from __future__ import annotations
 
 import jax
@@ -37,13 +38,16 @@ def hp_axes(hp: HParams):
 def varying_fields(hps: list[HParams]) -> frozenset:
     """Names whose value differs between rows (they get a batch axis; the rest stay scalars, so
     that the period gates they drive stay real conds)."""
-    return frozenset(k for k in hps[0] if any(not np.array_equal(np.asarray(h[k]), np.asarray(hps[0][k]))
-                                              for h in hps[1:]))
+    return frozenset(
+        k for k in hps[0] if any(not np.array_equal(np.asarray(h[k]), np.asarray(hps[0][k])) for h in hps[1:])
+    )
 
 
 def stack_hparams(hps: list[HParams], batched: frozenset | None = None) -> HParams:
     """Rows' HParams -> one HParams with leaves [rows] for the names in `batched` (default: those
     that differ between these rows) and scalars for the rest."""
     batched = varying_fields(hps) if batched is None else batched
-    return {k: jnp.asarray(np.stack([np.asarray(h[k]) for h in hps])) if k in batched else jnp.asarray(hps[0][k])
-            for k in hps[0]}
+    return {
+        k: jnp.asarray(np.stack([np.asarray(h[k]) for h in hps])) if k in batched else jnp.asarray(hps[0][k])
+        for k in hps[0]
+    }

@@ -23,6 +23,7 @@ points): the env's `EnvParams` are built from it inside the program, so a sweep 
 Per-step values leave the step scan as outputs (`StepMetrics`) and are reduced per episode after
 it (`EPISODE_METRICS`): adding a metric is one field and one line in that table.
 """
+
 from __future__ import annotations
 
 from functools import partial
@@ -40,16 +41,30 @@ from fedjax_nav.config import Config
 from fedjax_nav.env import NavEnv, make_params
 from fedjax_nav.env.nav import EnvParams, EnvState
 from fedjax_nav.federated import aggregators as agg
+from fedjax_nav.federated import attacks
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
+from fedjax_nav.training.probe import Probe
+from fedjax_nav.training.rooms import TrainRooms
 
 ENV_PREFIX = "env."
+ENV_PREFIXES = (ENV_PREFIX, "robot.")  # traced env.* and robot.* values that are EnvParams fields
+# fold_in tag of the federated round's draws (participation, attack noise): derived from the
+# state's key without consuming it, so the run's key stream is the same with and without them.
+FED_STREAM = 0x0FED
 
 
 def env_params(world: worlds.World, hp: HParams, random_starts: bool) -> EnvParams:
     """EnvParams for the robots' worlds [robots] with every traced `env.*` value taken from hp
     (traced: a sweep over them does not recompile). Every traced env field is an EnvParams field."""
-    values = {k[len(ENV_PREFIX):]: v for k, v in hp.items() if k.startswith(ENV_PREFIX)}
+    values = {
+        k.split(".", 1)[1]: v
+        for k, v in hp.items()
+        if k.startswith(ENV_PREFIXES) and k.split(".", 1)[1] in EnvParams.__dataclass_fields__
+    }  # not the trainer's own (room_every)
     return make_params(world, random_starts=random_starts, **values)
+
+
+env_params_of = env_params  # the module function (Trainer.env_params shadows it in methods)
 
 
 @struct.dataclass
@@ -65,25 +80,57 @@ class TrainState:
     reward_sum: jax.Array  # f32[robots] since the last federated step
     reward_steps: jax.Array  # f32[]
     key: jax.Array
+    # procedural rooms only (env.rooms = procedural; training/rooms.py), None otherwise:
+    world: worlds.World | None = None  # the robots' current rooms [robots]
+    room_stream: jax.Array | None = None  # u32[] this seed's offset in the training room stream
 
 
 class Trainer:
     """Static structure of a run (shapes, method flags, networks, worlds) built from a Config."""
 
-    def __init__(self, cfg: Config):
+    def __init__(self, cfg: Config, pad: int = 0):
+        """`pad` > 0 appends that many permanently masked clients (copies of the last robot's
+        room) so that the client axis divides over a mesh's devices: they never take part in a
+        federated round, their metrics are dropped, and the real robots' numbers equal the
+        unpadded run's to float32 round-off (their PRNG keys are the same: split(k, n + pad)
+        begins with split(k, n))."""
         self.cfg = cfg
         self.method = methods.get(cfg.method)
+        # one shared network or buffer cannot be split over devices: no padding (check_mesh says so)
+        shared = self.method.shared_network or self.method.shared_buffer
+        self.n_real, self.pad = cfg.num_robots, 0 if shared else int(pad)
+        if self.pad:
+            import dataclasses
+
+            cfg = dataclasses.replace(
+                cfg, env=dataclasses.replace(cfg.env, worlds=cfg.env.worlds + (cfg.env.worlds[-1],) * self.pad)
+            )
         e, d = cfg.env, cfg.ddpg
-        self.env = NavEnv(e.num_beams, e.max_range, e.episode_length, mode="learn", collision_test=e.collision_test)
-        self.world = worlds.load_many(e.worlds)
-        self.aggregator = agg.make(self.method.aggregator)
+        self.env = NavEnv(
+            e.num_beams,
+            e.max_range,
+            e.episode_length,
+            mode="learn",
+            collision_test=e.collision_test,
+            **cfg.robot.env_settings(),
+        )  # the ideal robot: noise off, the old program
+        self.rooms = TrainRooms(cfg)  # fixed playgrounds, or procedural rooms drawn in the program
+        self.world = self.rooms.world
+        f = cfg.fed
+        self.aggregator = agg.make(self.method.aggregator if f.aggregator == "method" else f.aggregator)
+        if f.attack in ("scale", "sign_flip", "stale") and f.aggregator == "method":
+            self.aggregator = agg.with_reference(self.aggregator)  # the attack needs the last global model
         self.num_robots = cfg.num_robots
         self.n_nets = 1 if self.method.shared_network else self.num_robots
         self.n_bufs = 1 if self.method.shared_buffer else self.num_robots
         self.writes = self.num_robots // self.n_bufs  # rows each buffer receives per step
         self.nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
+        self.probe = Probe(cfg, self.nets, cfg.run.eval_suite) if cfg.run.eval_every else None
         self.obs_size = self.env.obs_size
         self.T = e.episode_length
+        # static client roles: the last fed.byzantine real robots are Byzantine; padding is never real
+        self.real = np.arange(self.num_robots) < self.n_real
+        self.byzantine = self.real & (np.arange(self.num_robots) >= self.n_real - f.byzantine)
 
     def env_params(self, hp: HParams) -> EnvParams:
         return env_params(self.world, hp, self.method.random_starts)
@@ -102,20 +149,32 @@ class Trainer:
         k_nets, k_env, k_run = jax.random.split(key, 3)
         agents = jax.vmap(lambda k: ddpg.init_agent(self.nets, k, self.obs_size))(jax.random.split(k_nets, self.n_nets))
         buffers = jax.vmap(lambda _: rb.init(self.cfg.buffer_rows, self.obs_size))(jnp.arange(self.n_bufs))
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), self.env_params(hp))
+        rooms = {}
+        if self.rooms.procedural:
+            stream = self.rooms.stream(key)
+            rooms = {"room_stream": stream, "world": self.rooms.draw(stream, 0)}
+        params = env_params(rooms["world"], hp, self.method.random_starts) if rooms else self.env_params(hp)
+        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), params)
         return TrainState(
-            agents=agents, buffers=buffers, env_state=env_state, obs=obs,
-            epsilon=jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32), agg_state=self.aggregator.init(self.shared(agents)),
-            reward_sum=jnp.zeros(self.num_robots), reward_steps=jnp.float32(0), key=k_run,
+            **rooms,
+            agents=agents,
+            buffers=buffers,
+            env_state=env_state,
+            obs=obs,
+            epsilon=jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32),
+            agg_state=self.aggregator.init(self.real_rows(self.shared(agents))),
+            reward_sum=jnp.zeros(self.num_robots),
+            reward_steps=jnp.float32(0),
+            key=k_run,
         )
 
     def init_seeds(self, seeds: jax.Array, hp: HParams, mesh=None) -> TrainState:
         """Stacked states for integer seeds i32[S] (hp leaves scalar or [S]); with a `mesh`
-        (`fedjax_nav.parallel`), created already sharded over it."""
+        (`fedjax_nav.training.parallel`), created already sharded over it."""
         init = jax.vmap(lambda s, h: self.init(jax.random.key(s), h), in_axes=(0, hp_axes(hp)))
         if mesh is None:
             return jax.jit(init)(seeds, hp)  # jit: op-by-op init of the buffers took ~20 s under load
-        from fedjax_nav import parallel
+        from fedjax_nav.training import parallel
 
         self.check_mesh(mesh, len(seeds))
         shardings = parallel.state_shardings(jax.eval_shape(init, seeds, hp), mesh)
@@ -126,7 +185,9 @@ class Trainer:
     def _act(self, state: TrainState, key: jax.Array) -> jax.Array:
         actor = state.agents.actor
         if self.method.shared_network:
-            greedy = jax.vmap(ddpg.act, in_axes=(None, None, 0))(self.nets, jax.tree.map(lambda p: p[0], actor), state.obs)
+            greedy = jax.vmap(ddpg.act, in_axes=(None, None, 0))(
+                self.nets, jax.tree.map(lambda p: p[0], actor), state.obs
+            )
         else:
             greedy = jax.vmap(ddpg.act, in_axes=(None, 0, 0))(self.nets, actor, state.obs)
         keys = jax.random.split(key, self.num_robots)
@@ -149,12 +210,53 @@ class Trainer:
         return jax.vmap(one, in_axes=(0, buf_axis, 0))(agents, bufs, keys)
 
     def federated_step(self, state: TrainState, hp: HParams) -> TrainState:
-        """One round: every client sends `shared(agents)`; the aggregator's update comes back."""
+        """One round (see `federated_round`), the state only."""
+        return self.federated_round(state, hp)[0]
+
+    def participation(self, key: jax.Array, hp: HParams) -> jax.Array:
+        """bool[robots]: who takes part in this round, each with probability fed.participation
+        (uniform [0, 1) < p: every client when p = 1)."""
+        return (jax.random.uniform(key, (self.num_robots,)) < hp["fed.participation"]) & jnp.asarray(self.real)
+
+    def federated_round(self, state: TrainState, hp: HParams) -> tuple[TrainState, dict]:
+        """One round: the participants send `shared(agents)` (Byzantine ones the attack's
+        parameters, and for PW/RW an inflated reward); the aggregator's update comes back to the
+        honest participants. Absent clients and Byzantine ones keep their own models. A round
+        with fewer than max(fed.min_clients, 1) participants is skipped: nothing is sent, the
+        aggregator's state is unchanged. Returns the state and {"clients": i32 (clients that
+        exchanged), "skipped": i32 (1 if skipped)}. With participation 1, min_clients <= robots
+        and no attack this is exactly the thesis's round (every draw comes from
+        fold_in(key, FED_STREAM): the run's key stream is untouched)."""
+        f = self.cfg.fed
         r = state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
-        new, agg_state = self.aggregator.update(self.shared(state.agents), r, state.agg_state, hp,
-                                                jnp.ones(self.num_robots, bool))
-        return state.replace(agents=state.agents.replace(**new), agg_state=agg_state,
-                             reward_sum=jnp.zeros_like(state.reward_sum), reward_steps=jnp.float32(0))
+        own = self.shared(state.agents)
+        k_part, k_attack = jax.random.split(jax.random.fold_in(state.key, FED_STREAM))
+        mask = self.participation(k_part, hp)
+        n = jnp.sum(mask.astype(jnp.int32))
+        held = n >= jnp.maximum(hp["fed.min_clients"], 1)
+        sent, r_sent = own, r
+        if f.attack != "none" and f.byzantine > 0:
+            byz = jnp.asarray(self.byzantine)
+            sent = attacks.apply_attack(
+                f.attack, own, byz, k_attack, hp["fed.attack_scale"], agg.reference(state.agg_state)
+            )
+            if self.method.sends_rewards:
+                r_sent = attacks.inflate_reward(r, byz)
+        new, agg_state = self.aggregator.update(sent, r_sent, state.agg_state, hp, mask)
+        take = held & jnp.asarray(~self.byzantine)  # absent rows of `new` are already `sent` = own
+        new = (
+            agg.keep_absent(new, own, take)
+            if f.byzantine
+            else jax.tree.map(lambda a, b: jnp.where(held, a, b), new, own)
+        )
+        agg_state = jax.tree.map(lambda a, b: jnp.where(held, a, b), agg_state, state.agg_state)
+        stats = {"clients": jnp.where(held, n, 0), "skipped": (~held).astype(jnp.int32)}
+        return state.replace(
+            agents=state.agents.replace(**new),
+            agg_state=agg_state,
+            reward_sum=jnp.zeros_like(state.reward_sum),
+            reward_steps=jnp.float32(0),
+        ), stats
 
     def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
         """One env step of every robot, with the periodic updates. g: global step (unbatched).
@@ -162,7 +264,9 @@ class Trainer:
         key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
         actions = self._act(state, k_act)
         env_keys = jax.random.split(k_env, self.num_robots)
-        obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(env_keys, state.env_state, actions, env_params)
+        obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
+            env_keys, state.env_state, actions, env_params
+        )
         # s' is the true observation at the pose reached, also on a terminal step (obs2 is then
         # the start of the next attempt); the (1 - D) mask cuts the bootstrap there.
         rows = rb.Transition(state.obs, actions, reward, info["final_obs"], term.astype(jnp.float32))
@@ -180,39 +284,77 @@ class Trainer:
             state.agents,
         )
         do_target = ready & ((g + 1) % hp["ddpg.target_every"] == 0)
-        agents = jax.lax.cond(do_target, lambda a: jax.vmap(ddpg.update_targets, in_axes=(0, None))(a, hp["ddpg.rho"]),
-                              lambda a: a, agents)
-        state = state.replace(agents=agents, buffers=buffers, env_state=env_state, obs=obs2, key=key,
-                              epsilon=state.epsilon * hp["ddpg.epsilon_decay"],
-                              reward_sum=state.reward_sum + reward, reward_steps=state.reward_steps + 1.0)
-        fed_now = jnp.bool_(False)
+        agents = jax.lax.cond(
+            do_target,
+            lambda a: jax.vmap(ddpg.update_targets, in_axes=(0, None))(a, hp["ddpg.rho"]),
+            lambda a: a,
+            agents,
+        )
+        state = state.replace(
+            agents=agents,
+            buffers=buffers,
+            env_state=env_state,
+            obs=obs2,
+            key=key,
+            epsilon=state.epsilon * hp["ddpg.epsilon_decay"],
+            reward_sum=state.reward_sum + reward,
+            reward_steps=state.reward_steps + 1.0,
+        )
+        fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
             fed_now = (g + 1) % hp["fed.period"] == 0
-            state = jax.lax.cond(fed_now, lambda s: self.federated_step(s, hp), lambda s: s, state)
-        out = StepMetrics(reward=reward, goals=info["goal"].astype(jnp.int32),
-                          collisions=info["collision"].astype(jnp.int32), critic_loss=losses["critic_loss"],
-                          actor_loss=losses["actor_loss"], q=losses["q"], updates=do_update.astype(jnp.int32),
-                          fed_events=fed_now.astype(jnp.int32))
+            state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
+        out = StepMetrics(
+            reward=reward,
+            goals=info["goal"].astype(jnp.int32),
+            collisions=info["collision"].astype(jnp.int32),
+            critic_loss=losses["critic_loss"],
+            actor_loss=losses["actor_loss"],
+            q=losses["q"],
+            updates=do_update.astype(jnp.int32),
+            fed_events=fed_now.astype(jnp.int32),
+            fed_clients=fs["clients"],
+            fed_skipped=fs["skipped"],
+        )
         return state, out
 
     def episode(self, state: TrainState, hp: HParams, ep: jax.Array) -> tuple[TrainState, dict]:
         """One episode of T steps for one seed; ep (the episode index) must be unbatched."""
-        env_params = self.env_params(hp)
+        state, world = self.rooms.episode_world(state, hp, ep)  # new rooms / placements when configured
+        env_params = self.env_params(hp) if world is self.world else env_params_of(world, hp, self.method.random_starts)
         key, k_reset = jax.random.split(state.key)
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), env_params)
         state = state.replace(obs=obs, env_state=env_state, key=key)
         steps = ep * self.T + jnp.arange(self.T)
         state, per_step = jax.lax.scan(partial(self._step, hp, env_params), state, steps)
-        fed_end = jnp.int32(0)
+        fed_end, fs = jnp.int32(0), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
             fed_now = (ep + 1) % hp["fed.period"] == 0
-            state = jax.lax.cond(fed_now, lambda s: self.federated_step(s, hp), lambda s: s, state)
+            state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
         metrics = {name: reduce(per_step) for name, reduce in EPISODE_METRICS.items()}
         metrics["fed_events"] = metrics["fed_events"] + fed_end
+        metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
+        metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
         metrics["epsilon"] = state.epsilon
         metrics["params_finite"] = jax.vmap(_all_finite)((state.agents.actor, state.agents.critic))  # [n_nets]
+        if self.probe is not None:  # run.eval_every: greedy success on the held-out probe, NaN between
+            every = self.cfg.run.eval_every
+            metrics["eval_success"] = jax.lax.cond(
+                (ep + 1) % every == 0,
+                lambda a: self.probe.success(a, hp),
+                lambda a: jnp.full(self.n_nets, jnp.nan),
+                state.agents.actor,
+            )
+        if self.pad:  # the padding clients' rows are not results
+            metrics = jax.tree.map(
+                lambda x: x[: self.n_real] if x.ndim and x.shape[0] == self.num_robots else x, metrics
+            )
         return state, metrics
+
+    def real_rows(self, tree):
+        """Leaves [clients, ...] without the padding clients (`pad`)."""
+        return jax.tree.map(lambda x: x[: self.n_real], tree) if self.pad else tree
 
     def chunk(self, states: TrainState, hp: HParams, first_episode: jax.Array, num_episodes: int):
         """`num_episodes` episodes for every seed. Metrics leaves: [seeds, num_episodes, ...]."""
@@ -223,11 +365,12 @@ class Trainer:
 
         return jax.vmap(one_seed, in_axes=(0, hp_axes(hp)))(states, hp)
 
-    def compiled_chunk(self, num_episodes: int | None = None, mesh=None, states=None, hp: HParams | None = None,
-                       on_trace=None):
+    def compiled_chunk(
+        self, num_episodes: int | None = None, mesh=None, states=None, hp: HParams | None = None, on_trace=None
+    ):
         """jit(chunk) with the states donated (the replay buffers are updated in place).
 
-        With a `mesh` (see `fedjax_nav.parallel`), `states` and `hp` (templates: arrays or
+        With a `mesh` (see `fedjax_nav.training.parallel`), `states` and `hp` (templates: arrays or
         ShapeDtypeStructs) fix the in/out shardings: the states keep their placement, the
         metrics come back replicated (every process can read them). `on_trace()` is called each
         time jit traces the chunk (sweeps count their compilations with it)."""
@@ -240,22 +383,24 @@ class Trainer:
 
         if mesh is None:
             return jax.jit(fn, donate_argnums=0)
-        from fedjax_nav import parallel
+        from fedjax_nav.training import parallel
 
         if states is None or hp is None:
             raise ValueError("compiled_chunk(mesh=...) needs the states and hp templates")
         self.check_mesh(mesh, jax.tree.leaves(states.epsilon)[0].shape[0])
         st = parallel.state_shardings(states, mesh)
         rep = parallel.replicated(mesh)
-        return jax.jit(fn, donate_argnums=0, in_shardings=(st, parallel.seed_shardings(hp, mesh), rep),
-                       out_shardings=(st, rep))
+        return jax.jit(
+            fn, donate_argnums=0, in_shardings=(st, parallel.seed_shardings(hp, mesh), rep), out_shardings=(st, rep)
+        )
 
     def check_mesh(self, mesh, num_seeds: int) -> None:
         """Raise `parallel.ShardingError` if this run cannot be placed on `mesh`."""
-        from fedjax_nav import parallel
+        from fedjax_nav.training import parallel
 
-        parallel.check_placement(mesh, num_seeds, self.num_robots, self.method.shared_network,
-                                 self.method.shared_buffer)
+        parallel.check_placement(
+            mesh, num_seeds, self.num_robots, self.method.shared_network, self.method.shared_buffer
+        )
 
     def num_params(self) -> int:
         """Parameters of one agent (actor + critic), what one client sends per federated round."""
@@ -280,6 +425,8 @@ class StepMetrics:
     q: jax.Array  # f32[nets] mean Q of the batch
     updates: jax.Array  # i32[] 1 on a gradient step
     fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
+    fed_clients: jax.Array  # i32[] clients that exchanged models in that step's round
+    fed_skipped: jax.Array  # i32[] 1 if that round had too few participants
 
 
 def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:
@@ -295,4 +442,7 @@ EPISODE_METRICS: dict[str, Callable[[StepMetrics], jax.Array]] = {
     "actor_loss": lambda m: _per_update(m.actor_loss, m),
     "q": lambda m: _per_update(m.q, m),
     "fed_events": lambda m: jnp.sum(m.fed_events),
+    "fed_clients": lambda m: jnp.sum(m.fed_clients),
+    "fed_skipped": lambda m: jnp.sum(m.fed_skipped),
 }
+NO_ROUND = {"clients": np.int32(0), "skipped": np.int32(0)}  # what a step without a round reports

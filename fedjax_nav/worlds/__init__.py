@@ -13,13 +13,14 @@ Boxes become four segments each; the square walls become four segments. Everythi
 (zero-length segments, zero-radius circles, repeated starts and goals) so that worlds of
 different sizes `stack` into one pytree and run in one `vmap`.
 """
+
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -30,6 +31,8 @@ THESIS_TRAIN = ("train-0", "train-2", "train-3", "train-4", "train-5")  # thesis
 PAPER_TRAIN = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5")
 # Starts and goals must keep this clearance from every obstacle (the collision distance D_c).
 CLEARANCE = 0.25
+# Upper bound on the rows of each field of a world file (boxes, segments, circles, starts, goals).
+MAX_PRIMITIVES = 5000
 
 
 class WorldError(ValueError):
@@ -72,9 +75,7 @@ def box_segments(cx: float, cy: float, sx: float, sy: float, yaw: float) -> np.n
 
 def wall_segments(size) -> np.ndarray:
     w, h = size[0] / 2, size[1] / 2
-    return np.array(
-        [[-w, -h, w, -h], [w, -h, w, h], [w, h, -w, h], [-w, h, -w, -h]], dtype=np.float64
-    )
+    return np.array([[-w, -h, w, -h], [w, -h, w, h], [w, h, -w, h], [-w, h, -w, -h]], dtype=np.float64)
 
 
 def _array(spec: dict, field: str, ncol: int, src: str, required: bool) -> np.ndarray:
@@ -84,17 +85,20 @@ def _array(spec: dict, field: str, ncol: int, src: str, required: bool) -> np.nd
         return np.zeros((0, ncol))
     try:
         arr = np.asarray(spec[field], dtype=np.float64)
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, OverflowError, RecursionError) as e:
         raise WorldError(f"{src}: field '{field}' must be a list of rows of {ncol} numbers ({e})") from None
     if arr.size == 0:
         arr = arr.reshape(0, ncol)
     if arr.ndim != 2 or arr.shape[1] != ncol:
         raise WorldError(
-            f"{src}: field '{field}' has shape {list(arr.shape)}, expected [n, {ncol}] "
-            f"(rows of {ncol} numbers)"
+            f"{src}: field '{field}' has shape {list(arr.shape)}, expected [n, {ncol}] (rows of {ncol} numbers)"
         )
     if required and len(arr) == 0:
         raise WorldError(f"{src}: field '{field}' is empty; at least one row is needed")
+    if len(arr) > MAX_PRIMITIVES:
+        raise WorldError(
+            f"{src}: field '{field}' has {len(arr)} rows; at most {MAX_PRIMITIVES} are allowed per world file"
+        )
     if not np.all(np.isfinite(arr)):
         raise WorldError(f"{src}: field '{field}' holds a non-finite number")
     return arr
@@ -124,14 +128,14 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
     if not isinstance(spec, dict):
         raise WorldError(f"{src}: a world file must hold a mapping with fields size, starts, goals")
     allowed = {"name", "description", "size", "boxes", "segments", "circles", "starts", "goals"}
-    unknown = sorted(set(spec) - allowed)
+    unknown = [k for k in spec if k not in allowed]
     if unknown:
-        raise WorldError(f"{src}: unknown field '{unknown[0]}' (allowed: {', '.join(sorted(allowed))})")
+        raise WorldError(f"{src}: unknown field {str(unknown[0])!r} (allowed: {', '.join(sorted(allowed))})")
     if "size" not in spec:
         raise WorldError(f"{src}: missing field 'size' ([width, height] of the inner free space in m)")
     try:
         size = np.asarray(spec["size"], dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError, RecursionError):
         raise WorldError(f"{src}: field 'size' must be [width, height] in m") from None
     if size.shape != (2,) or not np.all(size > 0) or not np.all(np.isfinite(size)):
         raise WorldError(f"{src}: field 'size' must be [width, height] with both > 0, got {spec['size']!r}")
@@ -154,8 +158,7 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
     def check_point(p, field, i, clearance):
         if np.any(np.abs(p[:2]) >= half):
             raise WorldError(
-                f"{src}: {field}[{i}] = {p.tolist()} is outside the walls "
-                f"(|x| < {half[0]:g}, |y| < {half[1]:g})"
+                f"{src}: {field}[{i}] = {p.tolist()} is outside the walls (|x| < {half[0]:g}, |y| < {half[1]:g})"
             )
         for j, b in enumerate(boxes):
             if _inside_box(p, b):
@@ -198,18 +201,33 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
 
 
 def _read(path: Path) -> dict:
-    text = path.read_text()
+    """A world file's content; any problem reading or parsing it is one WorldError line."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise WorldError(f"{path}: not UTF-8 text (byte {e.start}); a world file is JSON or YAML") from None
+    except IsADirectoryError:
+        raise WorldError(f"{path}: is a directory, not a world file") from None
+    except OSError as e:  # permission denied, I/O errors, ...
+        raise WorldError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
     if path.suffix.lower() in (".yaml", ".yml"):
         import yaml
 
         try:
             return yaml.safe_load(text)
         except yaml.YAMLError as e:
-            raise WorldError(f"{path}: not valid YAML ({e})") from None
+            mark = getattr(e, "problem_mark", None)
+            where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+            problem = " ".join((where + str(getattr(e, "problem", "") or type(e).__name__)).split())
+            raise WorldError(f"{path}: not valid YAML ({problem})") from None
+        except Exception as e:  # e.g. RecursionError on absurd nesting
+            raise WorldError(f"{path}: not valid YAML ({type(e).__name__})") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
         raise WorldError(f"{path}: not valid JSON ({e})") from None
+    except Exception as e:  # e.g. RecursionError on absurd nesting
+        raise WorldError(f"{path}: not valid JSON ({type(e).__name__})") from None
 
 
 def resolve(name_or_path: str | Path) -> Path:
@@ -218,10 +236,12 @@ def resolve(name_or_path: str | Path) -> Path:
     if name in SHIPPED:
         return Path(str(resources.files("fedjax_nav.worlds") / "data" / f"{name}.json"))
     path = Path(name)
-    if not path.exists():
-        raise WorldError(
-            f"{name}: no such world file, and not a shipped world (shipped: {', '.join(SHIPPED)})"
-        )
+    try:
+        exists = path.exists()
+    except (OSError, ValueError) as e:  # e.g. a NUL byte or an over-long name
+        raise WorldError(f"{name!r}: cannot be read as a world file ({type(e).__name__})") from None
+    if not exists:
+        raise WorldError(f"{name}: no such world file, and not a shipped world (shipped: {', '.join(SHIPPED)})")
     return path
 
 
@@ -258,14 +278,45 @@ def pad(world: World, num_segments: int, num_circles: int, num_starts: int, num_
 
 def stack(worlds: Sequence[World]) -> World:
     """Pad worlds to common shapes and stack them on a new leading axis."""
-    dims = [max(max(w.segments.shape[0] for w in worlds), 1), max(max(w.circles.shape[0] for w in worlds), 1),
-            max(w.starts.shape[0] for w in worlds), max(w.goals.shape[0] for w in worlds)]
+    dims = [
+        max(max(w.segments.shape[0] for w in worlds), 1),
+        max(max(w.circles.shape[0] for w in worlds), 1),
+        max(w.starts.shape[0] for w in worlds),
+        max(w.goals.shape[0] for w in worlds),
+    ]
     padded = [pad(w, *dims) for w in worlds]
-    return World(*[jnp.stack(leaves) for leaves in zip(*[
-        (w.segments, w.circles, w.starts, w.num_starts, w.goals, w.num_goals, w.size) for w in padded
-    ])])
+    return World(
+        *[
+            jnp.stack(leaves)
+            for leaves in zip(
+                *[(w.segments, w.circles, w.starts, w.num_starts, w.goals, w.num_goals, w.size) for w in padded]
+            )
+        ]
+    )
 
 
 def load_many(names: Sequence[str | Path]) -> World:
     """Load and stack several worlds: a World with a leading playground axis."""
     return stack([load(n) for n in names])
+
+
+# Procedural rooms (docs/generator.md): specs in `rooms`, the JAX generator in `procedural`,
+# keys, held-out suites and world files in `suites`.
+from fedjax_nav.worlds.procedural import generate, generate_batch, generate_with_info  # noqa: E402, F401
+from fedjax_nav.worlds.rooms import (  # noqa: E402, F401
+    FAMILIES,
+    RoomSpec,
+    check_spec,
+    make_spec,
+    padded_shape,
+)
+from fedjax_nav.worlds.suites import (  # noqa: E402, F401
+    SUITES,
+    is_test_seed,
+    room_key,
+    save_world,
+    suite,
+    suite_rooms,
+    suite_seeds,
+    train_room_key,
+)

@@ -5,10 +5,16 @@ A checkpoint at step `e` (episodes completed) holds the stacked TrainState of ev
 metrics of episodes 0 .. e-1, so a resumed run rebuilds metrics.csv and continues bitwise as the
 run that was never interrupted. Saves are asynchronous; a kill during a save leaves a temporary
 folder that `latest_step()` ignores, so the previous checkpoint is used. Every checkpoint also holds
-a crc32 of each state array, checked on restore: a damaged file that still decodes is detected.
+a crc32 of each state array, checked on restore: a damaged file that still decodes is detected,
+and the resolved config it was trained with (`saved_config`; `train --resume` compares it with
+config.yaml). Errors are one line naming the checkpoint folder: `CheckpointError` when reading,
+`rundir.WriteError` when saving (a full disk); orbax's and asyncio's logs are silenced.
 """
+
 from __future__ import annotations
 
+import json
+import logging
 import re
 import sys
 import warnings
@@ -20,6 +26,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 from absl import logging as absl_logging
 
+from fedjax_nav.rundir import WriteError
+
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, corrupted or incompatible; the message names the path."""
@@ -30,30 +38,80 @@ class Checkpointer:
         """`process`: in a run of several jax processes, the index of this one; its manager then
         works alone (no barriers with the others): process 0 saves host (numpy) states, every
         process may restore. None: the usual single-process manager."""
-        # orbax logs routine events (e.g. removing an unfinished save after a kill) as warnings.
-        absl_logging.set_verbosity(absl_logging.ERROR)
+        # orbax logs routine events (e.g. removing an unfinished save after a kill) as warnings, and
+        # failures (a full disk, a damaged file) as pages of tracebacks from its threads: the
+        # user gets one line from the exception instead. After a failed write or read, tensorstore's
+        # callbacks into orbax's closed event loop are dropped as well.
+        _silence()
+        _quiet_abandoned_reads()
         self.dir = Path(run_dir).absolute() / "checkpoints"
         alone = {}
         if process is not None:
             if process == 0:
                 self.dir.mkdir(parents=True, exist_ok=True)  # orbax cannot create it with active_processes
-            alone = {"create": False, "multiprocessing_options": ocp.options.MultiprocessingOptions(
-                primary_host=process, active_processes={process})}
+            alone = {
+                "create": False,
+                "multiprocessing_options": ocp.options.MultiprocessingOptions(
+                    primary_host=process, active_processes={process}
+                ),
+            }
         self.manager = ocp.CheckpointManager(
             self.dir,
             # not "metrics": orbax reserves that item name for its JSON best-checkpoint metrics
             item_names=("state", "episode_history"),
-            options=ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=async_save,
-                                                 **({"create": True} | alone)),
+            options=ocp.CheckpointManagerOptions(
+                max_to_keep=keep, enable_async_checkpointing=async_save, **({"create": True} | alone)
+            ),
         )
 
-    def save(self, episodes_done: int, states, metrics: dict) -> None:
+    def save(self, episodes_done: int, states, metrics: dict, config: dict | None = None) -> None:
+        """Save asynchronously; `config` (config.to_dict of the run) is fingerprinted with it."""
         metrics = {k: np.asarray(v) for k, v in metrics.items()}
         metrics[_CRC] = _checksums(states)
-        self.manager.save(
-            episodes_done,
-            args=ocp.args.Composite(state=ocp.args.StandardSave(states), episode_history=ocp.args.StandardSave(metrics)),
-        )
+        if config is not None:
+            metrics[_CONFIG] = np.frombuffer(json.dumps(config, sort_keys=True).encode(), np.uint8)
+        with self._writing():
+            self.manager.save(
+                episodes_done,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardSave(states), episode_history=ocp.args.StandardSave(metrics)
+                ),
+            )
+
+    def _writing(self):
+        """Any failure of a save (now or of an earlier asynchronous one) as one WriteError line."""
+        import contextlib
+
+        @contextlib.contextmanager
+        def ctx():
+            try:
+                yield
+            except Exception as e:
+                _silence()
+                raise WriteError(
+                    f"{self.dir}: cannot save a checkpoint ({_one_line(e)}); the last complete checkpoint is kept"
+                ) from None
+
+        return ctx()
+
+    def saved_config(self, step: int | None = None) -> dict | None:
+        """The config (a to_dict mapping) saved with checkpoint `step` (default: the latest); None
+        for checkpoints written before configs were saved."""
+        step = self.latest() if step is None else step
+        if step is None:
+            raise CheckpointError(f"{self.dir}: no checkpoint to resume from")
+        path = self.dir / str(step) / "episode_history"
+        _quiet_abandoned_reads()
+        try:
+            with ocp.StandardCheckpointer() as ck:
+                history = ck.restore(path)
+            raw = history.get(_CONFIG)
+            return None if raw is None else json.loads(np.asarray(raw, np.uint8).tobytes().decode())
+        except Exception as e:
+            _silence()
+            raise CheckpointError(
+                f"{path}: cannot be read; the checkpoint is corrupted or incomplete ({_one_line(e)})"
+            ) from None
 
     def latest(self) -> int | None:
         return self.manager.latest_step()
@@ -69,38 +127,71 @@ class Checkpointer:
         _quiet_abandoned_reads()
         try:
             out = self.manager.restore(
-                step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract),
-                                              episode_history=ocp.args.StandardRestore()),
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardRestore(abstract), episode_history=ocp.args.StandardRestore()
+                ),
             )
         except Exception as e:  # orbax raises many types: name the file and what did not match
             # tensorstore could not read (decode) an array: its spec names the file's folder, then the array
             fields = [f.rstrip("/") for f in re.findall(r"'path': '([^']+)'", str(e)) if "/" not in f.rstrip("/")]
             if fields:
-                raise CheckpointError(f"{path}: field {fields[-1]} cannot be read; the checkpoint is corrupted "
-                                      "or incomplete (resume from an earlier step or restart)") from None
-            msg = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
-            raise CheckpointError(f"{path}: cannot restore this checkpoint into the run's state ({msg})") from None
+                raise CheckpointError(
+                    f"{path}: field {fields[-1]} cannot be read; the checkpoint is corrupted "
+                    "or incomplete (resume from an earlier step or restart)"
+                ) from None
+            _silence()
+            raise CheckpointError(
+                f"{path}: cannot restore this checkpoint into the run's state ({_one_line(e)})"
+            ) from None
         _check_shapes(out.state, template, path)
         history = {k: np.asarray(v) for k, v in out.episode_history.items()}
+        history.pop(_CONFIG, None)
         saved_crc = history.pop(_CRC, None)
         if saved_crc is not None:  # checkpoints written before checksums existed have none
             crc = _checksums(out.state)
             bad = np.nonzero(crc != saved_crc)[0] if crc.shape == saved_crc.shape else [0]
             if len(bad):
                 kp = jax.tree_util.tree_flatten_with_path(out.state)[0][bad[0]][0]
-                raise CheckpointError(f"{path}: field {'.'.join(_names(kp))} does not match the checksum saved with "
-                                      "it; the checkpoint is corrupted (resume from an earlier step or restart)")
+                raise CheckpointError(
+                    f"{path}: field {'.'.join(_names(kp))} does not match the checksum saved with "
+                    "it; the checkpoint is corrupted (resume from an earlier step or restart)"
+                )
         return out.state, history
 
     def wait(self) -> None:
-        self.manager.wait_until_finished()
+        with self._writing():
+            self.manager.wait_until_finished()
 
     def close(self) -> None:
-        self.manager.wait_until_finished()
-        self.manager.close()
+        with self._writing():
+            self.manager.wait_until_finished()
+            self.manager.close()
 
 
 _CRC = "state_crc32"  # key in the episode_history item
+_CONFIG = "config_json"  # key in the episode_history item: the run's config, as UTF-8 JSON bytes
+
+
+def fingerprint(config: dict) -> str:
+    """sha1 of a resolved config (`config.to_dict(cfg)`), as saved with every checkpoint."""
+    import hashlib
+
+    return hashlib.sha1(json.dumps(config, sort_keys=True).encode()).hexdigest()
+
+
+def _silence() -> None:
+    """Drop orbax's (absl) and asyncio's log records: failures reach the user as one line."""
+    absl_logging.set_verbosity(absl_logging.FATAL)
+    for name in ("asyncio", "absl", "orbax"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+def _one_line(e: BaseException) -> str:
+    """An exception's message in one short line: its first line, without tensorstore's JSON specs."""
+    text = (str(e).strip().splitlines() or [""])[0]
+    text = re.sub(r"\s*(\[tensorstore_spec|\{).*", "", text).rstrip(" :,;[(") or type(e).__name__
+    return text if len(text) <= 240 else text[:237] + "..."
 
 
 def _names(kp) -> tuple:
@@ -113,6 +204,7 @@ def _is_key(x) -> bool:
 
 def _checksums(states) -> np.ndarray:
     """crc32 of every leaf (PRNG keys by their key data), in tree order."""
+
     def raw(x):
         x = np.ascontiguousarray(jax.device_get(jax.random.key_data(x) if _is_key(x) else x))
         return x.reshape(-1).view(np.uint8)
@@ -125,8 +217,9 @@ def _check_stored_shapes(path: Path, template) -> None:
     try:
         with ocp.StandardCheckpointer() as ck:
             meta = ck.metadata(path / "state").item_metadata
-        stored = {_names(kp): tuple(v.shape) for kp, v in jax.tree_util.tree_flatten_with_path(meta)[0]
-                  if hasattr(v, "shape")}
+        stored = {
+            _names(kp): tuple(v.shape) for kp, v in jax.tree_util.tree_flatten_with_path(meta)[0] if hasattr(v, "shape")
+        }
     except Exception:  # unreadable metadata: the caller reports the original error
         return
     for kp, t in jax.tree_util.tree_flatten_with_path(template)[0]:

@@ -11,6 +11,7 @@ step's mean over the client axis into the cross-device collective.
 
 Which leaves carry the client axis is decided by field name (`CLIENT_FIELDS`), not by shape.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -23,7 +24,7 @@ from jax.sharding import PartitionSpec as P
 
 AXES = ("clients", "seeds")
 # TrainState fields whose leaves are [seeds, clients, ...]; every other field is [seeds, ...].
-CLIENT_FIELDS = ("agents", "buffers", "env_state", "obs", "reward_sum")
+CLIENT_FIELDS = ("agents", "buffers", "env_state", "obs", "reward_sum", "world")  # world: procedural rooms [robots]
 
 
 class ShardingError(ValueError):
@@ -38,9 +39,11 @@ def make_mesh(num_devices: int | None = None, axis: str = "clients", devices=Non
     devices = list(jax.devices() if devices is None else devices)
     n = len(devices) if num_devices is None else num_devices
     if not 1 <= n <= len(devices):
-        raise ShardingError(f"{n} devices asked for, {len(devices)} available "
-                            f"({jax.default_backend()}; on CPU set XLA_FLAGS=--xla_force_host_platform_device_count={n} "
-                            "before jax starts, e.g. `fedjax-nav train --devices N`)")
+        raise ShardingError(
+            f"{n} devices asked for, {len(devices)} available "
+            f"({jax.default_backend()}; on CPU set XLA_FLAGS=--xla_force_host_platform_device_count={n} "
+            "before jax starts, e.g. `fedjax-nav train --devices N`)"
+        )
     return Mesh(np.array(devices[:n]), (axis,), axis_types=(jax.sharding.AxisType.Auto,))
 
 
@@ -56,17 +59,32 @@ def check_placement(mesh: Mesh, num_seeds: int, num_clients: int, shared_network
     if _axis(mesh, "clients"):
         if shared_network or shared_buffer:
             what = "one network" if shared_network else "one replay buffer"
-            raise ShardingError(f"the method shares {what} between every robot: its clients cannot be split over "
-                                "devices; shard the seeds instead (--shard seeds)")
+            raise ShardingError(
+                f"the method shares {what} between every robot: its clients cannot be split over "
+                "devices; shard the seeds instead (--shard seeds)"
+            )
         n = mesh.shape["clients"]
         if num_clients % n:
-            raise ShardingError(f"{num_clients} clients (robots) do not divide over {n} devices; use a device count "
-                                f"that divides {num_clients}, or --shard seeds")
+            raise ShardingError(
+                f"{num_clients} clients (robots) do not divide over {n} devices; use a device count "
+                f"that divides {num_clients}, or --shard seeds"
+            )
     if _axis(mesh, "seeds"):
         n = mesh.shape["seeds"]
         if num_seeds % n:
-            raise ShardingError(f"{num_seeds} seeds do not divide over {n} devices; use a multiple of {n} seeds "
-                                "(--seeds), or fewer devices")
+            raise ShardingError(
+                f"{num_seeds} seeds do not divide over {n} devices; use a multiple of {n} seeds "
+                "(--seeds), or fewer devices"
+            )
+
+
+def client_padding(mesh: Mesh | None, num_clients: int) -> int:
+    """How many permanently masked clients make `num_clients` divide over the mesh's "clients"
+    axis (0 without one): 5 robots on 2 devices run as 6 clients, one of them masked
+    (`Trainer(cfg, pad=...)`; docs/robustness.md)."""
+    if mesh is None or _axis(mesh, "clients") is None:
+        return 0
+    return -num_clients % mesh.shape["clients"]
 
 
 def state_shardings(template, mesh: Mesh):
@@ -163,17 +181,25 @@ class DistributedConfig:
     process_id: int
 
 
-def distributed_config(coordinator: str | None = None, num_processes: int | None = None,
-                       process_id: int | None = None, environ=None) -> DistributedConfig:
+def distributed_config(
+    coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None, environ=None
+) -> DistributedConfig:
     """Flags, else the environment variables JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and
     JAX_PROCESS_ID; raises ShardingError naming what is missing or out of range."""
     env = os.environ if environ is None else environ
     coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
-    missing = [name for name, v in [("--coordinator / JAX_COORDINATOR_ADDRESS", coordinator),
-                                    ("--num-processes / JAX_NUM_PROCESSES", num_processes if num_processes is not None
-                                     else env.get("JAX_NUM_PROCESSES")),
-                                    ("--process-id / JAX_PROCESS_ID", process_id if process_id is not None
-                                     else env.get("JAX_PROCESS_ID"))] if v in (None, "")]
+    missing = [
+        name
+        for name, v in [
+            ("--coordinator / JAX_COORDINATOR_ADDRESS", coordinator),
+            (
+                "--num-processes / JAX_NUM_PROCESSES",
+                num_processes if num_processes is not None else env.get("JAX_NUM_PROCESSES"),
+            ),
+            ("--process-id / JAX_PROCESS_ID", process_id if process_id is not None else env.get("JAX_PROCESS_ID")),
+        ]
+        if v in (None, "")
+    ]
     if missing:
         raise ShardingError(f"--distributed needs {', '.join(missing)}")
     try:
@@ -188,8 +214,9 @@ def distributed_config(coordinator: str | None = None, num_processes: int | None
     return DistributedConfig(coordinator, n, i)
 
 
-def initialize_distributed(coordinator: str | None = None, num_processes: int | None = None,
-                           process_id: int | None = None) -> DistributedConfig:
+def initialize_distributed(
+    coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None
+) -> DistributedConfig:
     """`jax.distributed.initialize` from flags or the usual environment variables; CPU
     collectives through gloo. Call before any other jax use. Returns what was used."""
     dc = distributed_config(coordinator, num_processes, process_id)

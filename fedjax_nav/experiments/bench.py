@@ -13,6 +13,7 @@ sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped pr
 Results print as a table; `--record FILE` appends them, with machine, versions and command, to a
 markdown file (docs/benchmarks.md).
 """
+
 from __future__ import annotations
 
 import os
@@ -71,7 +72,7 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
     ndev = jax.local_device_count()
     for b in batches:
         idx = jnp.arange(b) % n
-        params = make_params(jax.tree.map(lambda x: x[idx], world))
+        params = make_params(jax.tree.map(lambda x, idx=idx: x[idx], world))
         keys = jax.random.split(jax.random.key(0), b)
         f = jax.jit(jax.vmap(rollout))
         t = _time(f, keys, params)
@@ -82,33 +83,47 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
             from jax.sharding import PartitionSpec as P
 
             mesh = jax.make_mesh((ndev,), ("batch",), axis_types=(jax.sharding.AxisType.Explicit,))
-            put = lambda x: jax.device_put(x, NamedSharding(mesh, P("batch")))  # noqa: E731
-            g = jax.jit(jax.shard_map(jax.vmap(rollout), mesh=mesh, in_specs=(P("batch"), P("batch")),
-                                      out_specs=P("batch"), check_vma=False))
+            put = lambda x, mesh=mesh: jax.device_put(x, NamedSharding(mesh, P("batch")))  # noqa: E731
+            g = jax.jit(
+                jax.shard_map(
+                    jax.vmap(rollout),
+                    mesh=mesh,
+                    in_specs=(P("batch"), P("batch")),
+                    out_specs=P("batch"),
+                    check_vma=False,
+                )
+            )
             t = _time(g, put(keys), jax.tree.map(put, params))
-            rows.append({"bench": "env", "batch": b, "devices": ndev, "steps": steps, "agent_steps_per_s": b * steps / t})
+            rows.append(
+                {"bench": "env", "batch": b, "devices": ndev, "steps": steps, "agent_steps_per_s": b * steps / t}
+            )
     return rows
 
 
-def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=(),
-                devices: int = 1) -> list[dict]:
+def bench_train(
+    seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=(), devices: int = 1, shard: str = "seeds"
+) -> list[dict]:
     """`devices` > 1: the seeds spread over that many devices (what `train --seeds N` does by
-    default when N is a multiple of the cores)."""
+    default when N is a multiple of the cores), or with `shard="clients"` the robots (padded
+    with masked clients to a multiple of `devices`: one thesis seed, 5 robots, as 3 + 3)."""
     from fedjax_nav.agents.ddpg import update_flops
     from fedjax_nav.config import load_config
-    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
 
     rows = []
     for s in seeds:
-        cfg = load_config("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
-                          [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides])
-        tr = Trainer(cfg)
+        cfg = load_config(
+            "configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
+            [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides],
+        )
         hp = hparams_from_config(cfg)
         mesh = None
         if devices > 1:
-            from fedjax_nav import parallel
+            from fedjax_nav.training import parallel
 
-            mesh = parallel.make_mesh(devices, "seeds", jax.local_devices())
+            mesh = parallel.make_mesh(devices, shard, jax.local_devices())
+        tr = Trainer(cfg, pad=parallel.client_padding(mesh, cfg.num_robots) if mesh is not None else 0)
         states = tr.init_seeds(jnp.arange(s), hp, mesh=mesh)
         f = tr.compiled_chunk(mesh=mesh, states=states, hp=hp)
         t0 = time.perf_counter()
@@ -119,18 +134,31 @@ def bench_train(seeds=(1,), episodes: int = 1, ceiling: float | None = None, ove
         states, m = f(states, hp, jnp.int32(episodes))
         jax.block_until_ready(m)
         dt = time.perf_counter() - t0
-        T, N = cfg.env.episode_length, tr.num_robots
+        T, N = cfg.env.episode_length, tr.n_real  # the padding clients' work is not counted
         agent_steps = s * N * T * episodes
-        updates = s * tr.n_nets * (T // cfg.ddpg.train_every) * episodes
+        updates = s * (tr.n_real if tr.pad else tr.n_nets) * (T // cfg.ddpg.train_every) * episodes
         flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
         gflops = flops / dt / 1e9
-        rows.append({
-            "bench": "train", "method": cfg.method, "seeds": s, "robots": N, "devices": devices,
-            "agent_steps_per_s": agent_steps / dt, "agent_updates_per_s": updates / dt,
-            "gflops": gflops, "ceiling_gflops": ceiling, "fraction_of_ceiling": gflops / ceiling if ceiling else None,
-            "episode_s": dt / episodes, "run_estimate_s": dt / episodes * cfg.run.episodes,  # all seeds together
-            "compile_s_incl_first_chunk": compile_s, "compile_s": max(compile_s - dt, 0.0),  # first call - a steady one
-        })
+        rows.append(
+            {
+                "bench": "train",
+                "method": cfg.method,
+                "seeds": s,
+                "robots": N,
+                "devices": devices,
+                "shard": shard if devices > 1 else None,
+                "padded_clients": tr.pad,
+                "agent_steps_per_s": agent_steps / dt,
+                "agent_updates_per_s": updates / dt,
+                "gflops": gflops,
+                "ceiling_gflops": ceiling,
+                "fraction_of_ceiling": gflops / ceiling if ceiling else None,
+                "episode_s": dt / episodes,
+                "run_estimate_s": dt / episodes * cfg.run.episodes,  # all seeds together
+                "compile_s_incl_first_chunk": compile_s,
+                "compile_s": max(compile_s - dt, 0.0),  # first call - a steady one
+            }
+        )
     return rows
 
 
@@ -143,9 +171,16 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
     from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
     from fedjax_nav.training.trainer import Trainer
 
-    cfg = load_config("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
-                      [f"run.chunk_episodes={episodes}", f"run.episodes={episodes}", f"fed.period={min(2, episodes)}",
-                       "run.checkpoint_every=0", *overrides])
+    cfg = load_config(
+        "configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
+        [
+            f"run.chunk_episodes={episodes}",
+            f"run.episodes={episodes}",
+            f"fed.period={min(2, episodes)}",
+            "run.checkpoint_every=0",
+            *overrides,
+        ],
+    )
     tr = Trainer(cfg)
     base = hparams_from_config(cfg)
     taus = np.linspace(0.0, 1.0, points).astype(np.float32)
@@ -164,7 +199,7 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
     n_dev = jax.local_device_count()
     sharded = None
     if n_dev > 1 and points % n_dev == 0:  # what `fedjax-nav sweep` does by default: rows over devices
-        from fedjax_nav import parallel
+        from fedjax_nav.training import parallel
 
         mesh = parallel.make_mesh(n_dev, "seeds", jax.local_devices())
         st = tr.init_seeds(jnp.zeros(points, jnp.int32), grid_hp, mesh=mesh)
@@ -191,10 +226,21 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
         if sharded:
             grid_dev = min(grid_dev, sharded())
     T, N = cfg.env.episode_length, tr.num_robots
-    row = {"bench": "sweep", "points": points, "episodes": episodes, "robots": N, "steps": T,
-           "one_by_one_s": one, "sweep_s": grid, "per_run_one_by_one_s": one / points,
-           "per_run_sweep_s": grid / points, "sweep_speedup": one / grid, "compile_s": compile_s, "repeat": repeat,
-           "devices": n_dev if sharded else 1}
+    row = {
+        "bench": "sweep",
+        "points": points,
+        "episodes": episodes,
+        "robots": N,
+        "steps": T,
+        "one_by_one_s": one,
+        "sweep_s": grid,
+        "per_run_one_by_one_s": one / points,
+        "per_run_sweep_s": grid / points,
+        "sweep_speedup": one / grid,
+        "compile_s": compile_s,
+        "repeat": repeat,
+        "devices": n_dev if sharded else 1,
+    }
     if sharded:
         row.update({"sweep_devices_s": grid_dev, "sweep_devices_speedup": one / grid_dev})
     return [row]
@@ -207,17 +253,21 @@ def machine() -> str:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return f"{cpu}, {os.cpu_count()} cores, {jax.default_backend()}; jax {jax.__version__}, python {platform.python_version()}"
+    py = platform.python_version()
+    return f"{cpu}, {os.cpu_count()} cores, {jax.default_backend()}; jax {jax.__version__}, python {py}"
 
 
 def format_rows(rows: list[dict]) -> str:
     lines = []
     for r in rows:
         if r["bench"] == "env":
-            lines.append(f"| env | batch {r['batch']}, {r['devices']} device(s) | {r['agent_steps_per_s']:,.0f} agent-steps/s |")
+            lines.append(
+                f"| env | batch {r['batch']}, {r['devices']} device(s) | {r['agent_steps_per_s']:,.0f} agent-steps/s |"
+            )
         elif r["bench"] == "sweep":
             lines.append(
-                f"| sweep | {r['points']} tau values x 1 seed, {r['episodes']} x {r['steps']} steps, {r['robots']} robots | "
+                f"| sweep | {r['points']} tau values x 1 seed, {r['episodes']} x {r['steps']} steps, "
+                f"{r['robots']} robots | "
                 f"one by one {r['one_by_one_s']:.1f} s ({r['per_run_one_by_one_s']:.1f} s per run); one vmapped "
                 f"program {r['sweep_s']:.1f} s ({r['per_run_sweep_s']:.1f} s per run): {r['sweep_speedup']:.2f}x; "
                 f"compiling both {r['compile_s']:.0f} s |"
@@ -257,7 +307,7 @@ def main(args) -> int:
         if n_dev > 1 and not quick:  # the default fast path of `train --seeds 8` on this machine
             rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over, devices=n_dev)
         # scaling with the number of clients: 1 and 40 robots (the thesis's rooms repeated), one seed
-        for robots in ((1,) if quick else (1, 40)):
+        for robots in (1,) if quick else (1, 40):
             rooms = ", ".join(f"train-{[0, 2, 3, 4, 5][i % 5]}" for i in range(robots))
             rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, f"env.worlds=[{rooms}]"))
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
@@ -270,7 +320,9 @@ def main(args) -> int:
     if record:
         cmd = "fedjax-nav bench " + " ".join(sys.argv[2:]) if sys.argv[0].endswith("fedjax-nav") else " ".join(sys.argv)
         with open(record, "a") as f:
-            f.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `{cmd}`\n\nMachine: {machine()}\n\n"
-                    f"| what | setting | result |\n|---|---|---|\n{table}\n")
+            f.write(
+                f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `{cmd}`\n\nMachine: {machine()}\n\n"
+                f"| what | setting | result |\n|---|---|---|\n{table}\n"
+            )
         print(f"appended to {record}")
     return 0

@@ -1,0 +1,297 @@
+"""`fedjax-nav`: the command line. Each command parses its flags and dispatches to a module.
+
+Heavy imports (jax, brax, matplotlib) happen inside the commands so that `--help` is instant.
+Errors end with one line on stderr and an exit code (docs/reliability.md): 2 input errors (bad
+config, world file, checkpoint, `--set` value; a run directory in use or holding results; not
+enough memory), 3 divergence (NaN/Inf or a divergence bound), 4 a failed write (e.g. a full disk),
+130 Ctrl-C (a checkpoint was saved).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from fedjax_nav.cli.commands import (  # noqa: F401  (UserError: the commands' input error)
+    UserError,
+    _auto_seed_devices,
+    _bench,
+    _configs,
+    _evaluate,
+    _render,
+    _reproduce,
+    _sweep,
+    _train,
+    _worlds,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fedjax-nav",
+        description=__doc__.splitlines()[0],
+        epilog="exit codes: 0 done, 2 input error (one line naming the file and field), "
+        "3 divergence, 4 failed write (e.g. a full disk), 130 interrupted "
+        "(docs/reliability.md)",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("train", help="train a method (all robots and seeds in one program)")
+    p.add_argument("--config", required=False, default=None, help="YAML config (e.g. configs/thesis/flddpg.yaml)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="number of seeds, trained together (vmap); a multiple of the cores spreads "
+        "them over one device per core unless --devices is given",
+    )
+    p.add_argument("--episodes", type=int, default=None, help="shortcut for --set run.episodes=N")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="run directory (default runs/<method>-<time>-<microseconds>-<pid>); one "
+        "holding results is refused unless --overwrite",
+    )
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
+    p.add_argument("--resume", metavar="RUN_DIR", default=None, help="continue a run from its latest checkpoint")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="--out may hold an earlier run's results: remove them first (default: refuse)",
+    )
+    p.add_argument(
+        "--allow-config-change",
+        action="store_true",
+        help="with --resume: allow changing run.episodes, run.checkpoint_every, run.keep_checkpoints, run.tensorboard, "
+        "run.max_abs_q, run.max_critic_loss (docs/reliability.md)",
+    )
+    p.add_argument(
+        "--memory-budget",
+        default=None,
+        metavar="SIZE",
+        help="refuse a run whose estimated memory exceeds SIZE, e.g. 8G (default: the available memory)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+    )
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="spread the run over N devices (on CPU: N forced host devices); default one, or every "
+        "device of every process with --distributed",
+    )
+    p.add_argument(
+        "--shard",
+        choices=["clients", "seeds"],
+        default="clients",
+        help="the axis spread over the devices (default clients: robots; SEDDPG/SNDDPG: seeds)",
+    )
+    p.add_argument(
+        "--distributed",
+        action="store_true",
+        help="one of several processes (jax.distributed); start one per host with the same flags",
+    )
+    p.add_argument(
+        "--coordinator",
+        default=None,
+        metavar="HOST:PORT",
+        help="process 0's address (default $JAX_COORDINATOR_ADDRESS)",
+    )
+    p.add_argument("--num-processes", type=int, default=None, help="default $JAX_NUM_PROCESSES")
+    p.add_argument("--process-id", type=int, default=None, help="default $JAX_PROCESS_ID")
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("evaluate", help="evaluate trained agents: success, time, efficiency, trajectories")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="training run directories (several: a comparison)")
+    p.add_argument("--world", default="eval", help="evaluation world: shipped name or world file (default eval)")
+    p.add_argument("--attempts", type=int, default=4, help="attempts per agent and goal (x num_robots for SNDDPG)")
+    p.add_argument("--range-noise", type=float, default=0.01, help="std of the lidar noise in m (default 0.01)")
+    p.add_argument("--action-noise", type=float, default=0.01, help="std of the action noise, action units (0.01)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the evaluation noise")
+    p.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="one run: folder for its evaluation files (default RUN/eval/<world>/); several runs: "
+        "folder for the comparison (default PARENT/eval/<world>/, PARENT: the first run's parent)",
+    )
+    p.add_argument("--no-figures", action="store_true", help="skip the PNGs")
+    p.add_argument(
+        "--robot",
+        default=None,
+        metavar="MODEL",
+        help="evaluate under this robot model (ideal, turtlebot3_burger; default: the run's own); "
+        "kept in RUN/eval/<world>-robot-<MODEL>/ (docs/robot.md)",
+    )
+    p.add_argument(
+        "--suite",
+        default=None,
+        metavar="NAME",
+        help="evaluate on a held-out suite of generated rooms instead of --world (e.g. heldout: 50 rooms "
+        "per family x 4 goals); results per family with 95%% bootstrap CIs in RUN/eval/<NAME>/",
+    )
+    p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("render", help="draw playgrounds with a short random-policy trajectory")
+    p.add_argument("worlds", nargs="*", help="world names or files (default: every shipped world)")
+    p.add_argument("--out", default="runs/render", help="output folder for the PNGs")
+    p.add_argument("--steps", type=int, default=300, help="random-policy steps to draw")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_render)
+
+    p = sub.add_parser("sweep", help="train a grid of settings x seeds, one compilation per static group")
+    p.add_argument("file", help="sweep file (e.g. configs/sweeps/tau.yaml)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per grid point (default: the file's)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a field of every point")
+    p.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>); run again to resume")
+    p.add_argument(
+        "--memory-budget",
+        default=None,
+        metavar="SIZE",
+        help="memory for one batch of runs, e.g. 4G (default: half of the available memory)",
+    )
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="spread each batch of runs over N devices (default: all; on CPU one per core)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+    )
+    p.set_defaults(func=_sweep)
+
+    p = sub.add_parser("reproduce", help="every experiment of thesis chapter 4 -> figures, tables, report.md")
+    p.add_argument(
+        "--scale",
+        choices=["ci", "thesis"],
+        default="ci",
+        help="ci: 10 episodes x 64 steps, 2 seeds (minutes); thesis: the thesis's scale (many hours)",
+    )
+    p.add_argument("--out", default=None, help="report folder (default runs/reproduce-<scale>); run again to resume")
+    p.add_argument("--only", default=None, metavar="A,B", help="comma-separated experiments (default: all)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per setting (default: the scale's / each file's)")
+    p.add_argument("--memory-budget", default=None, metavar="SIZE", help="memory for one batch of runs, e.g. 4G")
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="spread each batch of runs over N devices (default: all; on CPU one per core)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+    )
+    p.set_defaults(func=_reproduce)
+
+    p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")
+    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "all"])
+    p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
+    p.add_argument("--record", default=None, help="append the results to this markdown file")
+    p.set_defaults(func=_bench)
+
+    from fedjax_nav.deploy import export as _export  # argparse only at import: --help stays instant
+
+    _export.add_parser(sub)
+    p = sub.add_parser("worlds", help="procedural rooms: write generated world files (docs/generator.md)")
+    wsub = p.add_subparsers(dest="worlds_command", required=True)
+    g = wsub.add_parser(
+        "generate",
+        help="draw one procedural room and write it as a world file",
+        description="Draw one procedural room (see docs/generator.md) and write it as a world file.",
+    )
+    g.add_argument("--family", required=True, help="cylinders, boxes, walls or mixture")
+    g.add_argument(
+        "--seed",
+        required=True,
+        help="room seed, an integer in [0, 2**32); seeds >= 2**31 belong to the held-out test suites",
+    )
+    g.add_argument("--out", required=True, help="output file (.json, or .yaml / .yml)")
+    g.add_argument(
+        "--set",
+        action="append",
+        metavar="FIELD=VALUE",
+        help="override a RoomSpec field, e.g. cylinders_max=4 (repeatable)",
+    )
+    g.set_defaults(func=_worlds)
+
+    p = sub.add_parser("configs", help="list the shipped configs and experiment (sweep) files")
+    p.set_defaults(func=_configs)
+    return parser
+
+
+def _host_devices(args: argparse.Namespace) -> int:
+    """How many CPU devices to force for this command (GPUs ignore the flag). One XLA CPU device
+    keeps only ~1-1.5 of the cores busy on these programs, so the fast paths spread work over one
+    device per core: bench measures both; sweep/reproduce spread a batch's rows; train spreads
+    `--seeds N` (a multiple of the cores), or the N of `--devices N` (its share per process with
+    --distributed)."""
+    cores = os.cpu_count() or 1
+    if args.command == "bench":
+        return cores
+    if args.command in ("sweep", "reproduce"):
+        return args.devices or cores
+    if args.command == "train":
+        if (args.devices or 1) > 1:
+            env_n = os.environ.get("JAX_NUM_PROCESSES", "1")
+            nproc = (args.num_processes or (int(env_n) if env_n.isdigit() else 1)) if args.distributed else 1
+            return max(1, args.devices // nproc)
+        if _auto_seed_devices(args):
+            return cores
+    return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    n = _host_devices(args)
+    if (
+        n > 1
+        and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
+        and "jax" not in sys.modules
+    ):  # only before jax starts (in-process callers keep theirs)
+        os.environ["XLA_FLAGS"] = (
+            os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}"
+        ).strip()
+    from fedjax_nav.config import ConfigError
+    from fedjax_nav.rundir import RunDirError, WriteError
+    from fedjax_nav.training.checkpoint import CheckpointError
+    from fedjax_nav.training.run import DivergenceError, Interrupted
+    from fedjax_nav.worlds import WorldError
+
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, WorldError, ConfigError, CheckpointError, RunDirError) as e:
+        print(f"error: {' '.join(str(e).splitlines())}", file=sys.stderr)  # one line, whatever the input held
+        return 2
+    except DivergenceError as e:  # the message says what was kept
+        print(f"error: divergence: {e}", file=sys.stderr)
+        return 3
+    except BrokenPipeError:  # `fedjax-nav configs | head`: the reader left; nothing to report
+        sys.stderr.close()
+        return 0
+    except WriteError as e:  # a full disk, permissions: the message says what is kept
+        print(f"error: {e}", file=sys.stderr)
+        return 4
+    except OSError as e:  # any other failed write
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(
+            f"error: {where}{e.strerror or e}; files written before (the last complete checkpoint) are kept",
+            file=sys.stderr,
+        )
+        return 4
+    except Interrupted as e:
+        print(str(e), file=sys.stderr)
+        return 130

@@ -1,0 +1,277 @@
+"""The `fedjax-nav` commands: each takes the parsed flags, imports what it needs (so that
+`--help` stays instant) and returns an exit code; `UserError` is an input error (exit 2)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+
+class UserError(Exception):
+    """An input error the user can fix; printed as one line, exit code 2."""
+
+
+def _train(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from fedjax_nav.training import parallel
+
+    if args.distributed:  # before anything starts jax's backends
+        if not (args.out or args.resume):
+            raise UserError(
+                "--distributed needs --out DIR (or --resume DIR): every process must use the same run directory"
+            )
+        try:
+            parallel.initialize_distributed(args.coordinator, args.num_processes, args.process_id)
+        except parallel.ShardingError as e:
+            raise UserError(str(e)) from None
+
+    import jax
+
+    from fedjax_nav.config import diff, load_config
+    from fedjax_nav.training.run import RESUME_CHANGEABLE, train
+    from fedjax_nav.training.sweep import SweepError, parse_bytes
+
+    overrides = list(args.set or [])
+    if args.seeds is not None:
+        overrides.append(f"run.seeds={args.seeds}")
+    if args.episodes is not None:
+        overrides.append(f"run.episodes={args.episodes}")
+    if args.tensorboard:
+        overrides.append("run.tensorboard=true")
+    try:
+        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
+    except (SweepError, ValueError, OverflowError) as e:
+        raise UserError(f"--memory-budget: {e}") from None
+    src = f"{args.config}{' (with --set)' if overrides else ''}" if args.config else "<defaults> (with --set)"
+    if args.resume:
+        saved_path = Path(args.resume) / "config.yaml"
+        if not _is_file(saved_path):
+            raise UserError(f"{saved_path}: missing; {args.resume} is not a run directory")
+        cfg = src_cfg = load_config(saved_path)
+        src = str(saved_path)
+        if args.config or overrides:
+            asked = load_config(args.config or saved_path, overrides)
+            changed = diff(cfg, asked)
+            refused = [k for k in changed if not (args.allow_config_change and k in RESUME_CHANGEABLE)]
+            if refused:
+                raise UserError(
+                    f"{saved_path}: --resume with a changed config; differing fields: {', '.join(refused)}"
+                    + (
+                        f" (--allow-config-change permits only {', '.join(RESUME_CHANGEABLE)})"
+                        if args.allow_config_change
+                        else ""
+                    )
+                )
+            cfg = asked if changed else src_cfg
+        out = args.resume
+    else:
+        cfg = load_config(args.config, overrides)
+        # microseconds and the PID: two runs started in the same second never share a folder
+        stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{time.time() % 1 * 1e6:06.0f}-{os.getpid()}"
+        out = args.out or f"runs/{cfg.method}-{stamp}"
+    verb = "resuming" if args.resume else "training"
+    say = print if jax.process_index() == 0 else (lambda *a, **k: None)
+    if _auto_seed_devices(args) and cfg.run.seeds % jax.local_device_count() == 0 and jax.local_device_count() > 1:
+        args.devices, args.shard = jax.local_device_count(), "seeds"  # the fast path: whole seeds per device
+    try:
+        # one device and one process: no mesh, the program of a plain run
+        mesh = parallel.make_mesh(args.devices, args.shard) if args.distributed or (args.devices or 1) > 1 else None
+        where = (
+            ""
+            if mesh is None
+            else (
+                f" on {mesh.size} devices ({args.shard} sharded"
+                f"{f', {jax.process_count()} processes' if args.distributed else ''})"
+            )
+        )
+        say(
+            f"{verb} {cfg.method} on {', '.join(cfg.env.worlds)}: {cfg.run.episodes} episodes x "
+            f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s){where} -> {out}"
+        )
+        s = train(
+            cfg,
+            out,
+            progress=not args.quiet,
+            resume=bool(args.resume),
+            mesh=mesh,
+            overwrite=args.overwrite,
+            allow_config_change=args.allow_config_change,
+            memory_budget=budget,
+            src=src,
+        )
+    except (FileExistsError, parallel.ShardingError) as e:
+        raise UserError(str(e)) from None
+    if jax.process_index() == 0:
+        from fedjax_nav.analysis.plots import draw_run
+
+        draw_run(out)
+    say(
+        f"success over the last {s['last_episodes']} episodes: {s['success_last']:.3f} "
+        f"+- {s['success_last_std']:.3f} (std over {s['seeds']} seeds); mean reward per step "
+        f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s"
+    )
+    say(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
+    return 0
+
+
+def _is_file(path) -> bool:
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):  # e.g. a NUL byte or an over-long name
+        return False
+
+
+def _auto_seed_devices(args: argparse.Namespace) -> bool:
+    """`train --seeds N` (N > 1, a multiple of the cores, no --devices, not resuming, one process)
+    spreads its seeds over one device per core by default: one XLA CPU device keeps only ~1-1.5
+    of the cores busy. Seeds stay whole on a device, so each seed's numbers match a one-device
+    run to float32 round-off (docs/scaling.md); `--devices 1` gives the one-device program."""
+    cores = os.cpu_count() or 1
+    return (
+        args.devices is None
+        and not args.distributed
+        and not args.resume
+        and args.seeds is not None
+        and args.seeds > 1
+        and cores > 1
+        and args.seeds % cores == 0
+    )
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from fedjax_nav.evaluation import EvalError, evaluate_runs
+
+    if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
+        from fedjax_nav.evaluation.suite import evaluate_suite_runs
+
+        try:
+            evaluate_suite_runs(
+                args.run_dirs,
+                args.suite,
+                attempts=args.attempts,
+                range_noise=args.range_noise,
+                action_noise=args.action_noise,
+                seed=args.seed,
+                max_steps=args.max_steps,
+                out=args.out,
+            )
+        except EvalError as e:
+            raise UserError(str(e)) from None
+        return 0
+    robot = None
+    if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
+        from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
+
+        if args.robot not in ROBOT_MODELS:
+            raise UserError(f"--robot: unknown model {args.robot!r} (models: {', '.join(ROBOT_MODELS)})")
+        robot = RobotConfig(model=args.robot)
+    try:
+        evaluate_runs(
+            args.run_dirs,
+            world=args.world,
+            attempts=args.attempts,
+            range_noise=args.range_noise,
+            action_noise=args.action_noise,
+            seed=args.seed,
+            max_steps=args.max_steps,
+            out=args.out,
+            figures=not args.no_figures,
+            robot=robot,
+        )
+    except EvalError as e:
+        raise UserError(str(e)) from None
+    return 0
+
+
+def _render(args: argparse.Namespace) -> int:
+    from fedjax_nav.env.render import render_worlds
+
+    paths = render_worlds(args.worlds or None, out_dir=args.out, steps=args.steps, seed=args.seed)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from fedjax_nav.experiments.bench import main as bench_main
+
+    return bench_main(args)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from fedjax_nav.experiments.sweeps import run_sweep
+    from fedjax_nav.training.sweep import SweepError, load_sweep, parse_bytes
+
+    try:
+        tb = ["run.tensorboard=true"] if args.tensorboard else []
+        sweep = load_sweep(args.file, overrides=list(args.set or []) + tb, seeds=args.seeds)
+        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
+    except SweepError as e:
+        raise UserError(str(e)) from None
+    out = Path(args.out or f"runs/sweeps/{sweep.name}")
+    with _lock(out, "sweep folder"):
+        summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet, devices=args.devices)
+    if len(summ):
+        cols = ["label", "seeds", "success_last", "success_last_std", "reward_last", "reward_last_std"]
+        print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    traces = ", ".join(f"{g['method']}: {g['traces']}" for g in stats["groups"]) or "none (all points were done)"
+    print(f"{stats['wall_s']:.0f} s; compilations per group: {traces}")
+    print(f"wrote {out}/ (summary.csv, results.csv, learning_curves.png, points/<id>/ run directories)")
+    return 0
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    from fedjax_nav.experiments.reproduce import reproduce
+    from fedjax_nav.training.sweep import SweepError, parse_bytes
+
+    only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
+    try:
+        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
+        out = Path(args.out or f"runs/reproduce-{args.scale}")
+        with _lock(out, "report folder"):
+            reproduce(
+                args.scale,
+                out,
+                only=only,
+                seeds=args.seeds,
+                budget=budget,
+                progress=not args.quiet,
+                devices=args.devices,
+            )
+    except SweepError as e:
+        raise UserError(str(e)) from None
+    return 0
+
+
+def _lock(out: Path, what: str):
+    """Create `out` and hold its lock (`rundir.RunLock`): one writing process per folder."""
+    from fedjax_nav.rundir import RunDirError, RunLock, WriteError
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RunDirError(f"{out}: exists and is not a directory") from None
+    except OSError as e:
+        raise WriteError(f"{out}: cannot be created ({e.strerror or e})") from None
+    return RunLock(out, what)
+
+
+def _worlds(args: argparse.Namespace) -> int:
+    from fedjax_nav.worlds.suites import run_cli
+
+    return run_cli(args)
+
+
+def _configs(args: argparse.Namespace) -> int:
+    from fedjax_nav.configs import CONFIG_DIR, names
+
+    print(f"configs (fedjax-nav train --config NAME), in {CONFIG_DIR}:")
+    print("  " + "  ".join(names("config")))
+    print("experiments (fedjax-nav sweep NAME; reproduce --only NAME):")
+    print("  " + "  ".join(names("sweep")))
+    return 0

@@ -1,0 +1,249 @@
+"""Configuration: frozen dataclasses that map one to one onto the YAML files.
+
+A config file has four sections (`env`, `ddpg`, `fed`, `run`) and the `method`. Every field has
+a default, a type, an allowed range or set, and a note of whether it is *traced* (a JAX value:
+it can be swept in one compiled program) or *static* (it fixes shapes or the program).
+
+`traced=True` on a field is the one declaration of sweepability: `traced_fields()`, the trainer's
+`HParams` (`fedjax_nav.training.hparams`), the sweeps' grouping and the docs are derived from it,
+as rejax declares it once on the field.
+
+    cfg = load_config("configs/thesis/flddpg.yaml", overrides=["ddpg.gamma=0.99"])
+
+Unknown keys, wrong types and out-of-range values raise `ConfigError`, naming the file, the key
+and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields
+
+from fedjax_nav.methods import METHODS as _METHOD_TABLE
+from fedjax_nav.robots import ROBOT_MODELS, RobotConfig, robot_problem  # noqa: F401  (the `robot` section)
+
+METHODS = tuple(_METHOD_TABLE)
+# fed.aggregator and fed.attack choices (kept equal to fedjax_nav.federated's tables by
+# tests/test_robust_federation.py; config does not import jax).
+ROBUST_AGGREGATORS = ("method", "mean", "median", "trimmed_mean", "krum", "geometric_median", "norm_bounded")
+ATTACKS = ("none", "noise", "scale", "sign_flip", "zeros", "stale")
+ROOM_SOURCES = ("fixed", "procedural")
+ROOM_FAMILIES = ("cylinders", "boxes", "walls", "mixture", "fixed")  # fedjax_nav.worlds.FAMILIES + "fixed"
+
+
+class ConfigError(ValueError):
+    """A config value is invalid; the message names the file, the key and what is allowed."""
+
+
+def _f(default, lo=None, hi=None, choices=None, traced=False, doc=""):
+    meta = {"lo": lo, "hi": hi, "choices": choices, "traced": traced, "doc": doc}
+    if isinstance(default, (list, tuple)):
+        return field(default_factory=lambda: tuple(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    worlds: tuple = _f(
+        ("train-0", "train-2", "train-3", "train-4", "train-5"),
+        doc="one playground per robot: shipped names or world files (static: loaded once per program)",
+    )
+    episode_length: int = _f(1024, lo=1, doc="T, steps per episode (static)")
+    num_beams: int = _f(24, lo=1, hi=1024, doc="lidar beams (static)")
+    max_range: float = _f(3.5, lo=0.0, doc="m, lidar range (static)")
+    collision_test: str = _f("exact", choices=("exact", "lidar"), doc="exact distance or min(lidar) (static)")
+    dt: float = _f(0.1, lo=0.0, traced=True, doc="s per control step")
+    v_max: float = _f(0.25, lo=0.0, traced=True, doc="m/s")
+    omega_max: float = _f(1.0, lo=0.0, traced=True, doc="rad/s")
+    goal_radius: float = _f(0.5, lo=0.0, traced=True, doc="m, D_g")
+    collision_distance: float = _f(0.25, lo=0.0, traced=True, doc="m, D_c")
+    reward_goal: float = _f(100.0, traced=True, doc="R_g")
+    reward_collision: float = _f(-10.0, traced=True, doc="R_c")
+    progress_scale: float = _f(40.0, traced=True, doc="R_d = progress_scale * (d_prev - d)")
+    # Rooms the robots never saw (issue 15; docs/generalization.md). The defaults give today's runs.
+    rooms: str = _f(
+        "fixed",
+        choices=ROOM_SOURCES,
+        doc="fixed: the env.worlds playgrounds; procedural: fresh generated rooms in the program (static)",
+    )
+    room_families: tuple = _f(
+        ("mixture",),
+        doc="procedural rooms' family, one for every robot or one per robot: "
+        "cylinders, boxes, walls, mixture, or fixed = keep that robot's env.worlds room (static)",
+    )
+    room_every: int = _f(1, lo=1, hi=1_000_000, traced=True, doc="episodes between new procedural rooms")
+    room_spec: str = _f(
+        "",
+        doc="RoomSpec overrides of the procedural rooms, e.g. 'cylinders_max=4, goals_max=2' "
+        "(static; docs/generator.md)",
+    )
+    placement: str = _f(
+        "fixed",
+        choices=("fixed", "random"),
+        doc="start and goal: the room's start 0 / goal 0, or drawn at random in the free space "
+        "at every episode's reset (static)",
+    )
+
+
+@dataclass(frozen=True)
+class DDPGConfig:
+    hidden: int = _f(64, lo=1, hi=65536, doc="hidden width (static)")
+    depth: int = _f(3, lo=1, hi=16, doc="hidden layers (static)")
+    activation: str = _f("relu", choices=("relu", "tanh", "elu", "gelu", "silu"), doc="(static)")
+    buffer_size: int = _f(
+        10000, lo=1, hi=100_000_000, traced=True, doc="replay capacity per buffer (traced up to buffer_alloc)"
+    )
+    buffer_alloc: int = _f(0, lo=0, hi=100_000_000, doc="allocated rows (static); 0 = buffer_size. Sweeps set the max")
+    batch_size: int = _f(512, lo=1, hi=1_000_000, doc="(static)")
+    gamma: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="discount")
+    rho: float = _f(1.0, lo=0.0, hi=1.0, traced=True, doc="target mix: targ <- (1-rho) targ + rho net")
+    lr: float = _f(1e-3, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate (actor and critic)")
+    train_every: int = _f(5, lo=1, traced=True, doc="T_train: steps between gradient steps")
+    target_every: int = _f(5, lo=1, traced=True, doc="T_target: steps between target updates")
+    epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
+    epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
+
+
+@dataclass(frozen=True)
+class FedConfig:
+    tau: float = _f(0.5, lo=0.0, hi=1.0, traced=True, doc="soft mix: 0 = no sharing, 1 = hard FedAvg")
+    beta: float = _f(0.5, lo=0.0, hi=100.0, traced=True, doc="PW/RW reward scale, GS global step")
+    period_unit: str = _f("episodes", choices=("episodes", "steps"), doc="E_update or T_update (static)")
+    period: int = _f(2, lo=1, traced=True, doc="E_update (episodes) or T_update (steps)")
+    include_targets: bool = _f(False, doc="also average target networks (static)")
+    # Robust federation (issue 14; docs/robustness.md). The defaults give today's runs bit for bit.
+    participation: float = _f(
+        1.0,
+        lo=0.0,
+        hi=1.0,
+        traced=True,
+        doc="probability that a client takes part in a federated round (1 = every round)",
+    )
+    min_clients: int = _f(
+        1, lo=0, traced=True, doc="a round with fewer participants is skipped (and counted in fed_skipped)"
+    )
+    aggregator: str = _f(
+        "method",
+        choices=ROBUST_AGGREGATORS,
+        doc="the server's rule: 'method' = the method's own, or a robust center (static)",
+    )
+    trim: float = _f(0.2, lo=0.0, hi=0.5, traced=True, doc="trimmed_mean: fraction dropped at each end")
+    krum_f: int = _f(1, lo=0, traced=True, doc="krum: Byzantine clients tolerated, f (2f + 2 <= robots)")
+    krum_m: int = _f(1, lo=1, traced=True, doc="krum: clients averaged (1 = Krum, > 1 = Multi-Krum)")
+    max_norm: float = _f(
+        1.0, lo=0.0, traced=True, doc="norm_bounded: L2 bound of an update relative to the previous global model"
+    )
+    byzantine: int = _f(0, lo=0, doc="how many clients are Byzantine: the last ones (static)")
+    attack: str = _f("none", choices=ATTACKS, doc="what Byzantine clients send (static; docs/robustness.md)")
+    attack_scale: float = _f(
+        -10.0, traced=True, doc="scale attack: factor on the update; noise attack: std |attack_scale|"
+    )
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    episodes: int = _f(125, lo=1, hi=1_000_000, doc="E")
+    seeds: int = _f(1, lo=1, hi=4096, doc="seeds trained in one program (vmap)")
+    seed: int = _f(0, lo=0, hi=2**31 - 4097, doc="first PRNG seed")
+    chunk_episodes: int = _f(5, lo=1, hi=1_000_000, doc="episodes per compiled call (static; progress granularity)")
+    checkpoint_every: int = _f(25, lo=0, hi=1_000_000, doc="episodes between checkpoints (0 = only at the end)")
+    keep_checkpoints: int = _f(3, lo=1, hi=1000, doc="checkpoints kept")
+    tensorboard: bool = _f(
+        False, doc="also write per-episode scalars to RUN/tensorboard/ (metrics.csv stays the record)"
+    )
+    # Divergence guard (docs/reliability.md): healthy thesis runs reach |Q| ~ 14 and critic losses
+    # ~ 11; no return of the task exceeds ~1e5. Crossing a bound stops the run like NaN (exit 3).
+    max_abs_q: float = _f(1e6, lo=0.0, doc="stop when a network's mean |Q| estimate exceeds this (0 = off)")
+    max_critic_loss: float = _f(1e12, lo=0.0, doc="stop when a critic loss exceeds this (0 = off)")
+    # Periodic evaluation (docs/generalization.md): the eval_success column of metrics.csv.
+    eval_every: int = _f(
+        0, lo=0, hi=1_000_000, doc="episodes between greedy evaluations on run.eval_suite (0 = never; static)"
+    )
+    eval_suite: str = _f("probe", doc="held-out suite or group of the periodic evaluation (static)")
+
+
+@dataclass(frozen=True)
+class Config:
+    method: str = _f("flddpg", choices=METHODS, doc="the method (docs/decisions.md, Methods)")
+    env: EnvConfig = field(default_factory=EnvConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    fed: FedConfig = field(default_factory=FedConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+
+    @property
+    def num_robots(self) -> int:
+        return len(self.env.worlds)
+
+    @property
+    def buffer_rows(self) -> int:
+        return self.ddpg.buffer_alloc or self.ddpg.buffer_size
+
+
+SECTIONS = {"env": EnvConfig, "ddpg": DDPGConfig, "fed": FedConfig, "run": RunConfig, "robot": RobotConfig}
+
+
+def traced_fields() -> tuple[str, ...]:
+    """Dotted names of the fields that are JAX values (sweepable in one compilation): exactly the
+    fields declared with `traced=True`."""
+    return tuple(f"{s}.{f.name}" for s, cls in SECTIONS.items() for f in fields(cls) if f.metadata.get("traced"))
+
+
+def field_info(dotted: str) -> dataclasses.Field:
+    """The dataclass field behind a dotted name ("ddpg.gamma"), with its metadata."""
+    if dotted == "method":
+        return {f.name: f for f in fields(Config)}["method"]
+    section, name = dotted.split(".")
+    return {f.name: f for f in fields(SECTIONS[section])}[name]
+
+
+def get(cfg: Config, dotted: str):
+    """The value of a dotted name ("ddpg.gamma", or "method")."""
+    if dotted == "method":
+        return cfg.method
+    section, name = dotted.split(".")
+    return getattr(getattr(cfg, section), name)
+
+
+# The rest of the package's config API (validation, files, overrides) lives beside the schema.
+from fedjax_nav.config.io import (  # noqa: E402
+    apply_overrides,
+    diff,
+    load_config,
+    parse_yaml,
+    read_text,
+    read_yaml,
+    save_config,
+    to_dict,
+)
+from fedjax_nav.config.validate import check, from_dict  # noqa: E402
+
+__all__ = [
+    "ATTACKS",
+    "METHODS",
+    "ROBOT_MODELS",
+    "ROBUST_AGGREGATORS",
+    "ROOM_FAMILIES",
+    "ROOM_SOURCES",
+    "SECTIONS",
+    "Config",
+    "ConfigError",
+    "DDPGConfig",
+    "EnvConfig",
+    "FedConfig",
+    "RobotConfig",
+    "RunConfig",
+    "apply_overrides",
+    "check",
+    "diff",
+    "field_info",
+    "from_dict",
+    "get",
+    "load_config",
+    "parse_yaml",
+    "read_text",
+    "read_yaml",
+    "save_config",
+    "to_dict",
+    "traced_fields",
+]

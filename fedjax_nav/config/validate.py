@@ -1,0 +1,184 @@
+"""Config validation: types, ranges and choices per field (`_coerce`), cross-field checks
+(`check`), each error one line naming the file and the field."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import fields
+from typing import Any
+
+from fedjax_nav.config import (
+    ROOM_FAMILIES,
+    SECTIONS,
+    Config,
+    ConfigError,
+    robot_problem,
+)
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _coerce(value: Any, f: dataclasses.Field, where: str) -> Any:
+    typ = (
+        f.type
+        if isinstance(f.type, type)
+        else {"int": int, "float": float, "str": str, "bool": bool, "tuple": tuple}[f.type]
+    )
+    meta = f.metadata
+    if typ in (int, float) and isinstance(value, str):
+        value = _number(value)  # YAML 1.1 reads 1e8 and 1.0e8 as strings
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    elif typ is int:
+        if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        value = int(value)
+    elif typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+    elif typ is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+    elif typ is tuple:
+        if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
+            raise ConfigError(f"{where}: expected a non-empty list, got {value!r}")
+        value = tuple(str(v) for v in value)
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}")
+    if lo is not None and value < lo or hi is not None and value > hi:
+        rng = f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+        raise ConfigError(f"{where}: {value!r} is out of range; allowed {rng}")
+    return value
+
+
+def _number(text: str) -> Any:
+    """A float from a number in exponent notation that YAML 1.1 reads as a string ("1e8",
+    "1.0e8", "1e-3"); anything else (e.g. a quoted "0.9") stays a string and is rejected."""
+    import re
+
+    s = text.strip()
+    if re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+", s):
+        return float(s)
+    return text
+
+
+def _build(cls, data: Any, src: str, prefix: str):
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{src}: '{prefix}' must be a mapping, got {type(data).__name__}")
+    known = {f.name: f for f in fields(cls)}
+    for k in data:
+        if k not in known:
+            raise ConfigError(f"{src}: unknown key {f'{prefix}.{k}'!r} (allowed in '{prefix}': {', '.join(known)})")
+    return cls(**{k: _coerce(v, known[k], f"{src}: {prefix}.{k}") for k, v in data.items()})
+
+
+def from_dict(data: dict, src: str = "<config>") -> Config:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{src}: a config must be a mapping with keys method, env, ddpg, fed, run")
+    allowed = {"method", *SECTIONS}
+    for k in data:
+        if k not in allowed:
+            raise ConfigError(f"{src}: unknown key {str(k)!r} (allowed: {', '.join(sorted(allowed))})")
+    kwargs = {s: _build(cls, data.get(s), src, s) for s, cls in SECTIONS.items()}
+    if "method" in data:
+        kwargs["method"] = _coerce(data["method"], {f.name: f for f in fields(Config)}["method"], f"{src}: method")
+    cfg = Config(**kwargs)
+    check(cfg, src)
+    return cfg
+
+
+def check(cfg: Config, src: str = "<config>") -> None:
+    """Cross-field checks (each names the fields involved)."""
+    if msg := robot_problem(cfg.robot, cfg.env.num_beams):
+        raise ConfigError(f"{src}: {msg}")
+    d = cfg.ddpg
+    if d.buffer_alloc and d.buffer_alloc < d.buffer_size:
+        raise ConfigError(
+            f"{src}: ddpg.buffer_alloc ({d.buffer_alloc}) must be 0 or >= ddpg.buffer_size ({d.buffer_size})"
+        )
+    if d.buffer_size < d.batch_size:
+        raise ConfigError(
+            f"{src}: ddpg.buffer_size ({d.buffer_size}) is smaller than ddpg.batch_size ({d.batch_size}); "
+            "allowed: buffer_size >= batch_size"
+        )
+    # IDDPG, SEDDPG, SNDDPG have no federated step: their fed.period is unused, not inconsistent.
+    federated = cfg.method not in ("iddpg", "seddpg", "snddpg")
+    if federated and cfg.fed.period_unit == "episodes" and cfg.fed.period > cfg.run.episodes:
+        raise ConfigError(
+            f"{src}: fed.period ({cfg.fed.period} episodes) is longer than run.episodes ({cfg.run.episodes}); "
+            "no federated step would ever happen"
+        )
+    if federated and cfg.fed.period_unit == "steps" and cfg.fed.period > cfg.env.episode_length * cfg.run.episodes:
+        raise ConfigError(f"{src}: fed.period ({cfg.fed.period} steps) is longer than the whole run")
+    _check_fed(cfg, src, federated)
+    _check_rooms(cfg, src)
+    if cfg.run.episodes % cfg.run.chunk_episodes:
+        raise ConfigError(
+            f"{src}: run.episodes ({cfg.run.episodes}) must be a multiple of run.chunk_episodes "
+            f"({cfg.run.chunk_episodes})"
+        )
+    if cfg.run.checkpoint_every % cfg.run.chunk_episodes:
+        raise ConfigError(
+            f"{src}: run.checkpoint_every ({cfg.run.checkpoint_every}) must be a multiple of "
+            f"run.chunk_episodes ({cfg.run.chunk_episodes})"
+        )
+
+
+def _check_rooms(cfg: Config, src: str) -> None:
+    """env.room_families against the families and the robot count (RoomSpec overrides are checked
+    by the trainer, which imports the generator)."""
+    fams, n = cfg.env.room_families, cfg.num_robots
+    bad = [f for f in fams if f not in ROOM_FAMILIES]
+    if bad:
+        raise ConfigError(f"{src}: env.room_families: {bad[0]!r} is not one of {', '.join(ROOM_FAMILIES)}")
+    if len(fams) not in (1, n):
+        raise ConfigError(
+            f"{src}: env.room_families has {len(fams)} entries; allowed: 1 (every robot) or one per "
+            f"robot ({n}, env.worlds)"
+        )
+
+
+def _check_fed(cfg: Config, src: str, federated: bool) -> None:
+    """The robust-federation fields against each other, the method and the robot count."""
+    f, n = cfg.fed, cfg.num_robots
+    if not federated:
+        for name, value, default in [
+            ("aggregator", f.aggregator, "method"),
+            ("byzantine", f.byzantine, 0),
+            ("participation", f.participation, 1.0),
+        ]:
+            if value != default:
+                raise ConfigError(
+                    f"{src}: fed.{name} ({value!r}) needs a federated method; {cfg.method} has no "
+                    f"federated step (allowed: {default!r})"
+                )
+    if f.byzantine >= n:
+        raise ConfigError(
+            f"{src}: fed.byzantine ({f.byzantine}) must be smaller than the number of robots ({n}, env.worlds)"
+        )
+    if f.min_clients > n:
+        raise ConfigError(
+            f"{src}: fed.min_clients ({f.min_clients}) is larger than the number of robots ({n}, "
+            "env.worlds): every round would be skipped"
+        )
+    if (f.byzantine > 0) != (f.attack != "none"):
+        raise ConfigError(
+            f"{src}: fed.byzantine ({f.byzantine}) and fed.attack ({f.attack!r}) go together: "
+            "set both (byzantine >= 1 and an attack) or neither"
+        )
+    if f.aggregator == "krum":
+        if 2 * f.krum_f + 2 > n:
+            raise ConfigError(
+                f"{src}: fed.krum_f ({f.krum_f}) is too large for {n} robots: Krum needs "
+                f"2 * fed.krum_f + 2 <= robots ({2 * f.krum_f + 2} > {n})"
+            )
+        if f.krum_m > n - f.krum_f:
+            raise ConfigError(f"{src}: fed.krum_m ({f.krum_m}) must be <= robots - fed.krum_f ({n - f.krum_f})")

@@ -1,0 +1,297 @@
+"""The evaluation program (docs/evaluation.md; thesis 4.2): every agent x goal x attempt of a
+policy in one jitted program.
+
+Every agent drives one robot in an evaluation world from start 0 to each goal, `attempts` times,
+with its greedy (deterministic) actor action, in `NavEnv(mode="eval", noise=True)`: small
+Gaussian noise on the ranges and on the executed action is the only thing that makes attempts
+differ. An episode ends at the goal (success), at a collision (failure) or after `T` steps
+(a time-out, failure). All agents x goals x attempts run in one `vmap`; an outer `while_loop`
+over chunks of steps stops as soon as every episode has ended.
+
+Per episode: success, collision, timeout, steps, time = steps * dt (s), path length (m, the sum
+of the distances between consecutive poses), the straight-line distance and the efficiency, and
+the trajectory (poses; frozen at the last pose after the episode ended).
+
+Straight-line convention. The episode succeeds as soon as the robot is within the goal radius
+`D_g`, so the shortest possible path is `|goal - start| - D_g`, not `|goal - start|`. As in the
+thesis's analysis, `straight_line = |goal - start| - D_g` and
+`efficiency = straight_line / path_length`, over successful episodes only: a straight drive at
+the goal gives 1 (up to the overshoot of the last step, at most `v_max * dt`). The raw
+start-goal distance is recorded beside it (`start_goal_distance`).
+
+    evaluate_policy(policy, world, params, ...) -> EvalResult   any policy function
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from fedjax_nav import worlds as _worlds
+from fedjax_nav.env.nav import EnvState, NavEnv, make_params
+from fedjax_nav.worlds import World
+
+# Defaults of the evaluation noise (std of Gaussian noise): ranges in m, actions in the network's
+# units (v / v_max in [0, 1], omega / omega_max in [-1, 1]).
+RANGE_NOISE = 0.01
+ACTION_NOISE = 0.01
+ATTEMPTS = 4
+CHUNK = 64  # steps per inner scan; the outer while_loop exits once every episode is over
+
+
+class EvalError(ValueError):
+    """An evaluation input (run directory, params file, setting) is invalid; the message says which."""
+
+
+@struct.dataclass
+class _Episode:
+    """One episode's running state (vmapped over agents x episodes)."""
+
+    env_state: EnvState
+    obs: jax.Array  # f32[obs]
+    key: jax.Array
+    done: jax.Array  # bool[]
+    success: jax.Array  # bool[]
+    collision: jax.Array  # bool[]
+    timeout: jax.Array  # bool[]
+    steps: jax.Array  # i32[] steps taken until (and including) the terminal one
+    path: jax.Array  # f32[] m travelled
+
+
+@dataclass
+class EvalResult:
+    """Everything the program measured; arrays are numpy, axes [agent, goal, attempt, ...]."""
+
+    success: np.ndarray  # bool[A, G, K]
+    collision: np.ndarray  # bool[A, G, K]
+    timeout: np.ndarray  # bool[A, G, K]
+    steps: np.ndarray  # i32[A, G, K]
+    path_length: np.ndarray  # f32[A, G, K] m
+    poses: np.ndarray  # f32[A, G, K, T + 1, 3]; poses[..., 0, :] is the start; frozen after the end
+    goals: np.ndarray  # f32[G, 2] the goals evaluated (world coordinates)
+    goal_index: np.ndarray  # i32[G] their rows in the world
+    start: np.ndarray  # f32[3] start 0
+    dt: float
+    goal_radius: float
+    max_steps: int  # T
+    range_noise: float
+    action_noise: float
+    seed: int
+    wall_s: float = 0.0  # seconds of the call (compile included when it compiled)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.success.shape)  # type: ignore[return-value]
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return self.steps.astype(np.float64) * self.dt
+
+    @property
+    def start_goal_distance(self) -> np.ndarray:
+        """f64[G] |goal - start| in m."""
+        return np.linalg.norm(self.goals.astype(np.float64) - self.start[None, :2].astype(np.float64), axis=-1)
+
+    @property
+    def straight_line(self) -> np.ndarray:
+        """f64[G] |goal - start| - goal_radius (the shortest successful path), at least 0."""
+        return np.maximum(self.start_goal_distance - self.goal_radius, 0.0)
+
+    @property
+    def efficiency(self) -> np.ndarray:
+        """f64[A, G, K] straight_line / path_length on successful episodes, NaN elsewhere."""
+        path = self.path_length.astype(np.float64)
+        eff = self.straight_line[None, :, None] / np.where(path > 0, path, np.nan)
+        return np.where(self.success, eff, np.nan)
+
+
+@functools.lru_cache(maxsize=16)
+def _program(env_settings: tuple, policy: Callable, chunk: int):
+    """jit(run) for one env configuration (static: num_beams, max_range, T, collision_test) and
+    one policy function (static; cached by identity, so the same function reuses the program).
+
+    run(agent_params [A, ...], env_params, goal_index i32[G], keys [A, G*K]) with K = keys' second
+    axis // G.
+    """
+    num_beams, max_range, T, collision_test, *robot = env_settings  # robot: NavEnv's robot-model items
+    env = NavEnv(num_beams, max_range, T, mode="eval", collision_test=collision_test, noise=True, **dict(robot))
+    n_chunks = -(-T // chunk)
+
+    def init_one(key, g, env_params):
+        k_reset, k_run = jax.random.split(key)
+        obs, state = env.reset(k_reset, env_params.replace(goal_index=g))
+        f, i = jnp.bool_(False), jnp.int32(0)
+        return _Episode(state, obs, k_run, f, f, f, f, i, jnp.float32(0.0))
+
+    def step_one(params, ep: _Episode, env_params):
+        key, k_step = jax.random.split(ep.key)
+        action = policy(params, ep.obs)
+        obs, state, _, terminated, truncated, info = env.step(k_step, ep.env_state, action, env_params)
+        moved = jnp.linalg.norm(info["pose"][:2] - ep.env_state.pose[:2])
+        goal, collision = info["goal"], info["collision"]
+        new = ep.replace(
+            env_state=state,
+            obs=obs,
+            key=key,
+            done=terminated | truncated,
+            success=goal & ~collision,
+            collision=collision,
+            timeout=truncated & ~terminated,
+            steps=ep.steps + 1,
+            path=ep.path + moved,
+        )
+        # Freeze after the end: a finished episode keeps its last state (and pose) for good.
+        return jax.tree.map(lambda n, o: jnp.where(ep.done, o, n), new, ep)
+
+    def run(agent_params, env_params, goal_index, keys):
+        A, E = keys.shape[:2]
+        G = goal_index.shape[0]
+        goals_e = jnp.tile(goal_index, E // G)  # episode e = attempt * G + goal  (reordered below)
+        ep = jax.vmap(jax.vmap(init_one, (0, 0, None)), (0, None, None))(keys, goals_e, env_params)
+        start_pose = ep.env_state.pose  # [A, E, 3]
+        # agents x episodes: params vary over agents only
+        step_all = jax.vmap(jax.vmap(step_one, (None, 0, None)), (0, 0, None))
+
+        def inner(ep, _):
+            ep = step_all(agent_params, ep, env_params)
+            return ep, ep.env_state.pose
+
+        buf = jnp.zeros((n_chunks, chunk, A, E, 3), jnp.float32)
+
+        def cond(carry):
+            c, ep, _ = carry
+            return (c < n_chunks) & jnp.any(~ep.done)
+
+        def body(carry):
+            c, ep, buf = carry
+            ep, poses = jax.lax.scan(inner, ep, None, length=chunk)
+            return c + 1, ep, jax.lax.dynamic_update_index_in_dim(buf, poses, c, 0)
+
+        _, ep, buf = jax.lax.while_loop(cond, body, (jnp.int32(0), ep, buf))
+        poses = buf.reshape(n_chunks * chunk, A, E, 3)[:T]
+        # Chunks skipped by the early exit are zeros: every pose at or after an episode's end is
+        # its final pose (frozen), so fill those from the final state.
+        t = jnp.arange(1, T + 1)[:, None, None, None]
+        poses = jnp.where(t <= ep.steps[None, :, :, None], poses, ep.env_state.pose[None])
+        poses = jnp.concatenate([start_pose[None], poses], axis=0)  # [T + 1, A, E, 3]
+        poses = jnp.moveaxis(poses, 0, 2)  # [A, E, T + 1, 3]
+        out = {
+            "success": ep.success,
+            "collision": ep.collision,
+            "timeout": ep.timeout,
+            "steps": ep.steps,
+            "path": ep.path,
+            "poses": poses,
+        }
+        # [A, E] -> [A, K, G] -> [A, G, K]
+        return jax.tree.map(lambda x: jnp.swapaxes(x.reshape(A, E // G, G, *x.shape[2:]), 1, 2), out)
+
+    return jax.jit(run)
+
+
+@functools.lru_cache(maxsize=32)
+def _wrap_obs_only(policy: Callable) -> Callable:
+    def wrapped(_params, obs):
+        return policy(obs)
+
+    return wrapped
+
+
+def evaluate_policy(
+    policy: Callable,
+    world: World | str | Path,
+    params: Any = None,
+    *,
+    num_agents: int | None = None,
+    goals: list[int] | None = None,
+    attempts: int = ATTEMPTS,
+    max_steps: int = 1024,
+    range_noise: float = RANGE_NOISE,
+    action_noise: float = ACTION_NOISE,
+    seed: int = 0,
+    num_beams: int = 24,
+    max_range: float = 3.5,
+    collision_test: str = "exact",
+    chunk: int = CHUNK,
+    robot: dict | None = None,
+    **env_overrides,
+) -> EvalResult:
+    """Run the protocol for any policy: every agent x goal x attempt, one jitted program.
+
+    policy: `policy(agent_params, obs) -> action` when `params` is given, with `params` a pytree
+        whose leaves have a leading agent axis [A]; `policy(obs) -> action` when `params` is None
+        (one agent unless `num_agents` says otherwise, all identical). `obs` is the env's
+        observation f32[num_beams + 4] (ranges, goal distance, goal bearing, previous action);
+        the action is in the env's units (v / v_max, omega / omega_max). The policy is traced
+        once per (policy, env settings): pass the same function object to reuse the compilation.
+    world: a World (unstacked), a shipped name or a world file. goals: rows of the world's goals
+        (default: all of them). Start 0 is always the start.
+    max_steps: T, the time-out. range_noise / action_noise: Gaussian stds (m; action units).
+    env_overrides: EnvParams fields (dt, v_max, omega_max, goal_radius, collision_distance, ...).
+    robot: NavEnv's static robot-model settings (`RobotConfig.env_settings()` without `noise`; the
+        model's traced values go in env_overrides); None: the ideal robot.
+    """
+    if not isinstance(world, World):
+        world = _worlds.load(world)
+    if attempts < 1:
+        raise EvalError(f"attempts must be >= 1, got {attempts}")
+    if max_steps < 1:
+        raise EvalError(f"max_steps must be >= 1, got {max_steps}")
+    if not (0 <= range_noise < float("inf") and 0 <= action_noise < float("inf")):  # NaN fails too
+        raise EvalError(
+            f"noise stds must be finite and >= 0, got range_noise={range_noise}, action_noise={action_noise}"
+        )
+    n_goals = int(world.num_goals)
+    goal_rows = list(range(n_goals)) if goals is None else [int(g) for g in goals]
+    bad = [g for g in goal_rows if not 0 <= g < n_goals]
+    if bad or not goal_rows:
+        raise EvalError(f"goals must be rows 0..{n_goals - 1} of the world's goals, got {goals}")
+
+    if params is None:
+        A = int(num_agents or 1)
+        fn = _wrap_obs_only(policy)
+        agent_params = jnp.zeros((A,))  # a dummy leaf carrying the agent axis
+    else:
+        leaves = jax.tree.leaves(params)
+        if not leaves:
+            raise EvalError("params has no leaves")
+        A = int(leaves[0].shape[0])
+        if num_agents is not None and num_agents != A:
+            raise EvalError(f"num_agents={num_agents} but params have {A} agents on their leading axis")
+        fn, agent_params = policy, params
+
+    settings = (int(num_beams), float(max_range), int(max_steps), str(collision_test), *sorted((robot or {}).items()))
+    env_params = make_params(world, range_noise=range_noise, action_noise=action_noise, **env_overrides)
+    G, K = len(goal_rows), int(attempts)
+    keys = jax.random.split(jax.random.key(seed), A * G * K).reshape(A, G * K)
+    t0 = time.time()
+    program = _program(settings, fn, min(int(chunk), int(max_steps)))
+    out = program(agent_params, env_params, jnp.asarray(goal_rows, jnp.int32), keys)
+    out = jax.device_get(out)
+    wall = time.time() - t0
+    return EvalResult(
+        success=np.asarray(out["success"]),
+        collision=np.asarray(out["collision"]),
+        timeout=np.asarray(out["timeout"]),
+        steps=np.asarray(out["steps"]),
+        path_length=np.asarray(out["path"]),
+        poses=np.asarray(out["poses"]),
+        goals=np.asarray(world.goals)[goal_rows],
+        goal_index=np.asarray(goal_rows, np.int32),
+        start=np.asarray(world.starts[0]),
+        dt=round(float(env_params.dt), 7),
+        goal_radius=round(float(env_params.goal_radius), 7),
+        max_steps=int(max_steps),
+        range_noise=float(range_noise),
+        action_noise=float(action_noise),
+        seed=int(seed),
+        wall_s=wall,
+    )

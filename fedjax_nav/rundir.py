@@ -1,0 +1,304 @@
+"""The run directory: the one owner of its file names, formats and atomic writes.
+
+Training, sweeps, evaluation, analysis and the CLI read and write run directories only through
+this module (it imports the config and nothing above it)::
+
+    RUN/
+      config.yaml        the resolved config                      write_config / read_config
+      metrics.csv        one row per episode x seed x robot       write_metrics / read_metrics
+      summary.json       headline numbers                         write_json / read_json
+      params.npz         final actor/critic, leaves [seed, net, ...]  write_params / read_params
+      learning_curves.png
+      checkpoints/       orbax (fedjax_nav.training.checkpoint)
+      eval/<world>/      one folder per evaluation world          eval_dir
+        eval.json, eval_episodes.csv, eval_trajectories.npz, eval_bars.png, eval_trajectories.png
+      .lock              "PID HOST" of the one process writing it  lock / RunLock
+
+Every write goes to a temporary file that is then renamed onto its name, so a reader never sees
+a half-written file and a crash leaves the previous version in place.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+CONFIG = "config.yaml"
+METRICS = "metrics.csv"
+SUMMARY = "summary.json"
+PARAMS = "params.npz"
+CURVES = "learning_curves.png"
+CHECKPOINTS = "checkpoints"
+EVAL = "eval"
+NETWORKS = ("actor", "critic")
+
+
+LOCK = ".lock"
+# What a finished or started run leaves: `train --out` refuses a folder holding any (docs/reliability.md).
+RESULTS = (CONFIG, METRICS, SUMMARY, PARAMS, CURVES, CHECKPOINTS, EVAL, "tensorboard")
+
+
+class RunDirError(ValueError):
+    """A run directory or one of its files is missing or unreadable; the message names the file."""
+
+
+class WriteError(OSError):
+    """Writing results failed (a full disk, permissions, ...); the message names the file (exit 4)."""
+
+
+# ----------------------------------------------------------------------------- ownership
+
+
+class RunLock:
+    """`RUN/.lock`, created atomically (O_EXCL) with the owner's "PID HOST": one writer per run
+    directory. A lock whose PID is dead on this host is stale (a killed run): it is taken over, with
+    a line on stderr. `release()` (or leaving a `with` block) removes it."""
+
+    def __init__(self, directory: str | Path, what: str = "run directory"):
+        import socket
+        import sys
+
+        self.path = Path(directory) / LOCK
+        self.owner = f"{os.getpid()} {socket.gethostname()}"
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                pid, host = _lock_owner(self.path)
+                if pid is not None and host == socket.gethostname() and not _alive(pid):
+                    print(
+                        f"{self.path}: taking over a stale lock of process {pid} (no longer running)", file=sys.stderr
+                    )
+                    self.path.unlink(missing_ok=True)
+                    continue
+                who = f"process {pid} on {host}" if pid is not None else "another process"
+                raise RunDirError(
+                    f"{directory}: this {what} is in use by {who} (lock {self.path}); wait for "
+                    "it to end, or remove the lock file if that process is gone"
+                ) from None
+            except OSError as e:
+                raise WriteError(f"{self.path}: cannot create the lock file ({e.strerror or e})") from None
+            with os.fdopen(fd, "w") as fh:
+                fh.write(self.owner + "\n")
+            return
+        raise RunDirError(f"{directory}: could not take the lock {self.path} (another process keeps taking it)")
+
+    def release(self) -> None:
+        try:
+            if self.path.read_text().strip() == self.owner:
+                self.path.unlink()
+        except OSError:
+            pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def _lock_owner(path: Path) -> tuple[int | None, str | None]:
+    try:
+        pid, host = path.read_text().split()[:2]
+        return int(pid), host
+    except (OSError, ValueError):  # being written right now, or foreign: treat as held
+        return None, None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def results_in(directory: str | Path) -> list[str]:
+    """The result files and folders (RESULTS) that `directory` already holds."""
+    d = Path(directory)
+    return [name for name in RESULTS if (d / name).exists()] if d.is_dir() else []
+
+
+def clear_results(directory: str | Path) -> None:
+    """Remove every result file and folder of a run directory (`train --overwrite`)."""
+    import shutil
+
+    for name in results_in(directory):
+        p = Path(directory) / name
+        shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def atomic_write(path: str | Path, write: Callable[[Path], Any]) -> Path:
+    """Call write(tmp_path), then rename onto path: readers never see a half-written file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as e:  # e.g. a full disk: keep the old file, leave no half-written temporary
+        _unlink_quietly(tmp)
+        raise WriteError(
+            f"{path}: cannot be written ({e.strerror or e}); the previous version of the file "
+            "and the last complete checkpoint are kept"
+        ) from None
+    except BaseException:
+        _unlink_quietly(tmp)
+        raise
+    return path
+
+
+def _unlink_quietly(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    return atomic_write(path, lambda p: Path(p).write_text(text))
+
+
+def jsonable(x):
+    """Plain JSON types from numpy scalars/arrays, tuples and non-string keys."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def write_json(path: str | Path, obj) -> Path:
+    return write_text(path, json.dumps(jsonable(obj), indent=1))
+
+
+def write_config(run_dir: str | Path, cfg) -> Path:
+    from fedjax_nav.config import save_config
+
+    return atomic_write(Path(run_dir) / CONFIG, lambda p: save_config(cfg, p))
+
+
+def write_metrics(run_dir: str | Path, df) -> Path:
+    return atomic_write(Path(run_dir) / METRICS, lambda p: df.to_csv(p, index=False))
+
+
+def flatten_params(agents) -> dict[str, np.ndarray]:
+    """{"actor/params/Dense_0/kernel": array, ...} from an AgentState-like object (or dict) with
+    `actor` and `critic` pytrees."""
+    import jax
+
+    flat = {}
+    for name in NETWORKS:
+        tree = agents[name] if isinstance(agents, dict) else getattr(agents, name)
+        for kp, leaf in jax.tree_util.tree_flatten_with_path(jax.device_get(tree))[0]:
+            flat[name + "/" + "/".join(str(getattr(k, "key", k)) for k in kp)] = np.asarray(leaf)
+    return flat
+
+
+def write_params(run_dir: str | Path, agents) -> Path:
+    """params.npz: every actor and critic leaf, [seed, net, ...] for a stacked run."""
+    flat = flatten_params(agents)
+    return atomic_write(Path(run_dir) / PARAMS, lambda p: np.savez(open(p, "wb"), **flat))
+
+
+def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Save a matplotlib Figure atomically (a reader never sees a half-written PNG)."""
+    path = Path(path)
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png"))
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def require(path: str | Path, what: str = "file") -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise RunDirError(f"{path}: no such {what}")
+    return path
+
+
+def run_dir(path: str | Path, need: tuple[str, ...] = (CONFIG,)) -> Path:
+    """The run directory `path`, checked to exist and to hold the files in `need`."""
+    path = Path(path)
+    if not path.is_dir():
+        raise RunDirError(f"{path}: no such run directory")
+    for name in need:
+        if not (path / name).exists():
+            raise RunDirError(f"{path}: missing {name} (is this a finished training run directory?)")
+    return path
+
+
+def read_config(run: str | Path):
+    """The run's resolved Config (ConfigError names the file and the field)."""
+    from fedjax_nav.config import load_config
+
+    return load_config(run_dir(run) / CONFIG)
+
+
+def read_metrics(run: str | Path):
+    import pandas as pd
+
+    path = run_dir(run, (METRICS,)) / METRICS
+    try:
+        return pd.read_csv(path)
+    except Exception as e:  # a truncated or foreign file: one line naming it
+        raise RunDirError(f"{path}: cannot be read as a metrics table ({type(e).__name__}: {e})") from None
+
+
+def read_json(path: str | Path) -> dict:
+    path = require(path)
+    try:
+        return json.loads(Path(path).read_text())
+    except Exception as e:
+        raise RunDirError(f"{path}: cannot be read as JSON ({type(e).__name__}: {e})") from None
+
+
+def unflatten(flat: dict[str, np.ndarray]) -> dict:
+    tree: dict = {}
+    for key, value in flat.items():
+        node = tree
+        parts = key.split("/")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = value
+    return tree
+
+
+def read_params(run: str | Path, network: str = "actor") -> dict:
+    """One network's parameters as a nested dict of arrays [seed, net, ...] from params.npz."""
+    path = run_dir(run, (PARAMS,)) / PARAMS
+    try:
+        with np.load(path) as z:
+            flat = {k[len(network) + 1 :]: np.asarray(z[k]) for k in z.files if k.startswith(network + "/")}
+    except Exception as e:  # a truncated or foreign file
+        raise RunDirError(f"{path}: cannot be read as a params file ({e})") from None
+    if not flat:
+        raise RunDirError(f"{path}: no '{network}/...' arrays")
+    return unflatten(flat)
+
+
+# ----------------------------------------------------------------------------- evaluations
+
+
+def world_slug(world: str | Path) -> str:
+    """A folder name for an evaluation world: a shipped name as it is, a file by its stem."""
+    name = Path(str(world)).stem if any(c in str(world) for c in "/\\.") else str(world)
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "world"
+
+
+def eval_dir(run: str | Path, world: str | Path) -> Path:
+    """Where the evaluation of `run` on `world` is kept: RUN/eval/<world>/."""
+    return Path(run) / EVAL / world_slug(world)

@@ -1,0 +1,108 @@
+"""Packing a sweep's jobs into compiled groups and batches within a memory budget."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from fedjax_nav.training.hparams import HParams, hparams_from_config, stack_hparams, varying_fields
+from fedjax_nav.training.sweep.spec import STATE_BYTES_FACTOR, Job, SweepError, group_key
+from fedjax_nav.training.trainer import Trainer
+
+
+def row_bytes(trainer: Trainer) -> int:
+    """Bytes of one row's TrainState (replay buffers dominate)."""
+    hp = hparams_from_config(trainer.cfg)
+    shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
+    return int(
+        sum(
+            np.prod(x.shape) * x.dtype.itemsize
+            for x in jax.tree.leaves(shapes)
+            if hasattr(x, "dtype") and not jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+        )
+    )
+
+
+def default_memory_budget() -> int:
+    """Half of the memory available now (Linux /proc/meminfo; else half of the physical memory)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024 // 2
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+
+
+@dataclass
+class Group:
+    key: str
+    jobs: list  # Job
+    trainer: Trainer
+    batches: list = field(default_factory=list)  # lists of jobs
+    batch_rows: int = 0  # padded rows per batch (one compilation)
+    batched: frozenset = frozenset()  # HParams fields that differ between the group's rows
+
+
+def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
+    """Group jobs by static structure and pack each group into equal-size batches within budget
+    (rows padded to a multiple of `devices`, over which the rows are spread)."""
+    groups: dict[str, list[Job]] = {}
+    for j in jobs:
+        groups.setdefault(group_key(j.cfg), []).append(j)
+    out = []
+    for key, js in groups.items():
+        alloc = max(j.cfg.buffer_rows for j in js)
+        rep = js[0].cfg
+        rep = replace(rep, ddpg=replace(rep.ddpg, buffer_alloc=alloc))
+        trainer = Trainer(rep)
+        per_row = row_bytes(trainer) * STATE_BYTES_FACTOR
+        cap = max(1, budget // max(per_row, 1))
+        batches, cur, rows = [], [], 0
+        for j in js:
+            n = j.cfg.run.seeds
+            if n > cap:
+                raise SweepError(
+                    f"point {j.id} ({j.cfg.method}) needs {n} rows of ~{per_row / 2**20:.0f} MiB, more than the "
+                    f"memory budget {budget / 2**30:.2f} GiB allows ({cap} rows); "
+                    "raise --memory-budget or use fewer seeds"
+                )
+            if rows + n > cap:
+                batches.append(cur)
+                cur, rows = [], 0
+            cur.append(j)
+            rows += n
+        if cur:
+            batches.append(cur)
+        rows = max(sum(j.cfg.run.seeds for j in b) for b in batches)
+        rows = -(-rows // devices) * devices
+        out.append(Group(key, js, trainer, batches, rows, varying_fields([hparams_from_config(j.cfg) for j in js])))
+    return out
+
+
+def batch_rows(
+    jobs: list[Job], size: int, batched: frozenset | None = None
+) -> tuple[np.ndarray, HParams, list[tuple[Job, int, int]]]:
+    """Seeds i32[size], HParams (leaves scalar or [size]) and (job, first row, seeds) per job."""
+    seeds, hps, spans, r = [], [], [], 0
+    for j in jobs:
+        n = j.cfg.run.seeds
+        seeds += [j.cfg.run.seed + i for i in range(n)]
+        hps += [hparams_from_config(j.cfg)] * n
+        spans.append((j, r, n))
+        r += n
+    pad = size - len(seeds)
+    seeds += [seeds[-1]] * pad
+    hps += [hps[-1]] * pad
+    return np.asarray(seeds, np.int32), stack_hparams(hps, batched), spans
+
+
+def batch_id(jobs: list[Job], size: int) -> str:
+    text = json.dumps([[j.id, j.cfg.run.seeds] for j in jobs] + [size])
+    return hashlib.sha1(text.encode()).hexdigest()[:12]

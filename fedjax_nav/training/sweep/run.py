@@ -1,0 +1,205 @@
+"""Running a sweep's jobs: one jitted chunk per group, batches resumable from checkpoints, each
+finished point written as a run directory (`points/<id>/`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fedjax_nav import rundir
+from fedjax_nav.training.hparams import HParams
+from fedjax_nav.training.run import metrics_frame, summarize
+from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget, plan
+from fedjax_nav.training.sweep.spec import Job
+from fedjax_nav.training.tblog import TensorBoardLog
+from fedjax_nav.training.trainer import Trainer
+
+
+def is_done(points_dir: Path, job: Job) -> bool:
+    f = points_dir / job.id / rundir.SUMMARY
+    if not f.exists():
+        return False
+    try:
+        s = json.loads(f.read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    return s.get("seeds", 0) >= job.cfg.run.seeds and s.get("episodes_done") == job.cfg.run.episodes
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclass
+class Compiled:
+    """One jitted chunk per group, with a count of its traces (a sweep should trace once); with a
+    mesh the rows (the trainer's seed axis) are spread over its devices."""
+
+    trainer: Trainer
+    num_episodes: int
+    mesh: Any = None
+    traces: int = 0
+    fn: Callable | None = None
+
+    def __post_init__(self):
+        if self.mesh is None:  # else built on the first batch, from its states' shapes
+            self.fn = self.trainer.compiled_chunk(self.num_episodes, on_trace=self._count)
+
+    def _count(self):
+        self.traces += 1
+
+    def init(self, seeds: np.ndarray, hp: HParams):
+        states = self.trainer.init_seeds(jnp.asarray(seeds), hp, mesh=self.mesh)
+        if self.fn is None:
+            self.fn = self.trainer.compiled_chunk(
+                self.num_episodes, mesh=self.mesh, states=states, hp=hp, on_trace=self._count
+            )
+        return states
+
+
+def _slice(tree, lo: int, n: int):
+    return jax.tree.map(lambda x: x[lo : lo + n], tree)
+
+
+def write_point(points_dir: Path, job: Job, trainer: Trainer, states, metrics: dict, extra: dict) -> dict:
+    """Save one job as a run directory (what `fedjax-nav train` writes, checkpoints aside)."""
+    d = points_dir / job.id
+    d.mkdir(parents=True, exist_ok=True)
+    cfg = job.cfg
+    df = metrics_frame(metrics, cfg, trainer)
+    summary = summarize(df, cfg, trainer)
+    finite = np.asarray(metrics["params_finite"]).all(axis=(1, 2)) & np.isfinite(np.asarray(metrics["reward"])).all(
+        axis=(1, 2)
+    )
+    summary.update(
+        {"diverged_seeds": [int(cfg.run.seed + i) for i in np.nonzero(~finite)[0]], "point_id": job.id, **extra}
+    )
+    rundir.write_config(d, cfg)
+    rundir.write_metrics(d, df)
+    rundir.write_params(d, states.agents)
+    rundir.write_json(d / rundir.SUMMARY, summary)  # last: marks done
+    return summary
+
+
+def run_batch(
+    group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Path, points_dir: Path, progress: bool, desc: str
+) -> float:
+    """Train one batch (resuming its checkpoint if any), save its points, return its wall time."""
+    from tqdm.auto import tqdm
+
+    from fedjax_nav.training.checkpoint import Checkpointer
+
+    trainer = group.trainer
+    cfg = trainer.cfg
+    seeds, hp, spans = batch_rows(jobs, group.batch_rows, group.batched)
+    bdir = batches_dir / batch_id(jobs, group.batch_rows)
+    states = compiled.init(seeds, hp)
+    ckpt = Checkpointer(bdir, keep=2)
+    E, K, every = cfg.run.episodes, cfg.run.chunk_episodes, cfg.run.checkpoint_every
+    start, metrics = 0, None
+    if ckpt.latest() is not None:  # orbax restores into the template's shardings
+        states, metrics = ckpt.restore(states)
+        start = int(ckpt.latest())
+    t0 = time.time()
+    tb = {job.id: TensorBoardLog(points_dir / job.id) for job, _, _ in spans if job.cfg.run.tensorboard}
+    bar = tqdm(total=E, initial=start, desc=desc, unit="ep", leave=False, disable=not progress)
+    try:
+        for first in range(start, E, K):
+            states, m = compiled.fn(states, hp, jnp.int32(first))
+            m = jax.device_get(m)
+            metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
+            for job, lo, n in spans:
+                if job.id in tb:  # live scalars of the chunk's episodes (metrics.csv is written at the end)
+                    df = metrics_frame({k: v[lo : lo + n] for k, v in m.items()}, job.cfg, trainer)
+                    tb[job.id].episodes(df.assign(episode=df["episode"] + first))
+            done = first + K
+            bar.update(K)
+            bar.set_postfix(success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}")
+            if every and done % every == 0 and done < E:
+                ckpt.save(done, jax.tree.map(jnp.copy, states), metrics)  # a copy: states get donated next
+    finally:
+        bar.close()
+        ckpt.close()
+        for log in tb.values():
+            log.close()
+    wall = time.time() - t0
+    for job, lo, n in spans:
+        extra = {
+            "sweep_batch_rows": group.batch_rows,
+            "sweep_batch_wall_s": wall,
+            "wall_s": wall * n / group.batch_rows,
+            "resumed_from_episode": start,
+        }
+        write_point(
+            points_dir, job, trainer, _slice(states, lo, n), {k: v[lo : lo + n] for k, v in metrics.items()}, extra
+        )
+    shutil.rmtree(bdir, ignore_errors=True)
+    return wall
+
+
+def run_jobs(
+    jobs: list[Job],
+    out: str | Path,
+    budget: int | None = None,
+    progress: bool = True,
+    desc: str = "sweep",
+    echo: Callable[[str], None] = print,
+    devices: int | None = None,
+) -> dict:
+    """Train every job not already saved under `out/points/`. Returns timings and trace counts.
+
+    `devices` (default: every local device): the rows of a batch are spread over that many
+    devices (`fedjax-nav sweep` on CPU forces one host device per core: both cores busy)."""
+    from tqdm.auto import tqdm
+
+    from fedjax_nav.training import parallel
+
+    devices = jax.local_device_count() if devices is None else devices
+    mesh = parallel.make_mesh(devices, "seeds", jax.local_devices()) if devices > 1 else None
+
+    out = Path(out)
+    points_dir, batches_dir = out / "points", out / "batches"
+    points_dir.mkdir(parents=True, exist_ok=True)
+    todo = [j for j in jobs if not is_done(points_dir, j)]
+    skipped = len(jobs) - len(todo)
+    budget = budget or default_memory_budget()
+    groups = plan(todo, budget, devices) if todo else []
+    n_batches = sum(len(g.batches) for g in groups)
+    echo(
+        f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(todo)} to train in {len(groups)} "
+        f"compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB, {devices} device(s))"
+    )
+    stats = {"points": len(jobs), "skipped": skipped, "groups": [], "wall_s": 0.0, "devices": devices}
+    t0 = time.time()
+    outer = tqdm(total=n_batches, desc=desc, unit="batch", disable=not progress or n_batches < 2)
+    try:
+        for gi, g in enumerate(groups):
+            compiled = Compiled(g.trainer, g.trainer.cfg.run.chunk_episodes, mesh)
+            walls = []
+            for bi, b in enumerate(g.batches):
+                what = f"{g.trainer.cfg.method} [{gi + 1}/{len(groups)}] batch {bi + 1}/{len(g.batches)}"
+                walls.append(run_batch(g, compiled, b, batches_dir, points_dir, progress, what))
+                outer.update(1)
+            stats["groups"].append(
+                {
+                    "method": g.trainer.cfg.method,
+                    "jobs": len(g.jobs),
+                    "batches": len(g.batches),
+                    "batch_rows": g.batch_rows,
+                    "traces": compiled.traces,
+                    "wall_s": sum(walls),
+                }
+            )
+    finally:
+        outer.close()
+    stats["wall_s"] = time.time() - t0
+    if batches_dir.exists() and not any(batches_dir.iterdir()):
+        batches_dir.rmdir()
+    return stats

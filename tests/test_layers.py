@@ -1,0 +1,111 @@
+"""The package's layering is one-way (docs/architecture.md): a module imports only from its own
+package or from lower layers, function-level imports included. Also: no source file over ~400
+lines, and no source cites files that are not in the repository."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "fedjax_nav"
+
+# Lowest first. Packages in one layer do not import each other.
+LAYERS = [
+    ["methods", "robots", "worlds", "configs"],
+    ["env"],
+    ["agents", "federated"],
+    ["config"],
+    ["rundir"],
+    ["training"],
+    ["evaluation", "analysis"],
+    ["experiments", "deploy"],
+    ["cli", "__main__"],
+]
+RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}
+MAX_LINES = 450
+
+
+def unit(module: str) -> str:
+    """'fedjax_nav.training.sweep.run' -> 'training'."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def sources():
+    return sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def imports(path: Path) -> set[str]:
+    """Every fedjax_nav module imported anywhere in the file (relative imports resolved)."""
+    tree = ast.parse(path.read_text())
+    me = module_name(path).split(".")
+    pkg = me if path.name == "__init__.py" else me[:-1]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("fedjax_nav")}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = ".".join(pkg[: len(pkg) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            if base == "fedjax_nav":  # `from fedjax_nav import worlds`
+                out |= {f"fedjax_nav.{a.name}" for a in node.names}
+            elif base.startswith("fedjax_nav"):
+                out.add(base)
+    return out
+
+
+def test_every_package_has_a_layer():
+    units = {unit(module_name(p)) for p in sources()} - {"__init__"}
+    assert units <= set(RANK), f"add these to LAYERS (and docs/architecture.md): {sorted(units - set(RANK))}"
+
+
+def test_imports_go_down_the_layers_only():
+    bad = []
+    for path in sources():
+        me = unit(module_name(path))
+        if me == "__init__":
+            continue
+        for imp in imports(path):
+            other = unit(imp)
+            if other in (me, "__init__"):
+                continue
+            if RANK[other] >= RANK[me]:
+                bad.append(
+                    f"{path.relative_to(PKG.parent)} imports {imp} ({other}: layer {RANK[other]} >= {me}: {RANK[me]})"
+                )
+    assert not bad, "\n".join(bad)
+
+
+def test_evaluation_does_not_import_training():
+    for path in (PKG / "evaluation").rglob("*.py"):
+        assert not [i for i in imports(path) if unit(i) == "training"], path
+
+
+@pytest.mark.parametrize("path", sources(), ids=lambda p: str(p.relative_to(PKG)))
+def test_no_source_file_over_the_size_limit(path):
+    n = len(path.read_text().splitlines())
+    assert n <= MAX_LINES, f"{path.relative_to(PKG.parent)}: {n} lines (split it; one job per file)"
+
+
+def test_sources_cite_only_files_of_the_repository():
+    """The project notes outside the repository are not cited: comments point at docs/ instead."""
+    roots = [PKG, PKG.parent / "tests", PKG.parent / "scripts", PKG.parent / "docs", PKG.parent / "examples"]
+    hits = [
+        f"{p}: {name}"
+        for root in roots
+        for p in root.rglob("*")
+        if p.suffix in (".py", ".md", ".yaml")
+        for name in ("SCENARIO" + ".md", "STACK-NOTES" + ".md")
+        if name in p.read_text(errors="ignore")
+    ]
+    assert not hits, "\n".join(hits)
