@@ -1,0 +1,343 @@
+"""`fedjax-nav export`: one trained actor of a run -> a folder a robot can use without JAX.
+
+    fedjax-nav export RUN_DIR [--seed S] [--agent K] --format numpy|onnx --out DIR [--force]
+
+--seed S: the run's PRNG seed (the `seed` column of eval_episodes.csv / eval.json's per_agent;
+default: the run's first seed, config run.seed). --agent K: the network within that seed (the
+`net` column; 0..n_nets-1, a shared-network method has only 0; default 0).
+
+numpy: DIR/weights.npz + DIR/policy.py (policy_template.py: the actor and the observation
+functions in numpy, no JAX) + DIR/meta.json.
+onnx:  DIR/policy.onnx (input "obs" float32[batch, num_beams + 4], output "action"
+float32[batch, 2]) + DIR/meta.json + DIR/policy.py (for its observation functions; its `Policy`
+class needs the numpy format's weights.npz).
+
+Why the ONNX graph is written with the `onnx` package's helper API and not with jax2onnx:
+jax2onnx 0.17.1 (the newest on PyPI) does export this actor (checked in an isolated directory:
+Gemm / Max / Sigmoid / Tanh / Concat, max |diff| 3e-7 against flax), but it requires
+orbax-checkpoint < 0.11.37 while this project runs orbax-checkpoint 0.12.8 (checkpoints), and it
+pulls about 25 further packages (huggingface-hub, netron, equinox, dm-pix, orbax-export, ...);
+the newest release compatible with orbax 0.12.8 is the older 0.13.0 with the same dependency
+tree. The actor is a handful of Gemm + activation nodes, so the graph is built here from exactly
+the arrays written to weights.npz (needs only `onnx`, a light dependency; checked with
+onnxruntime in tests/test_export.py). tf2onnx was not considered (it pulls TensorFlow).
+
+Errors the user can fix end with one line on stderr naming the file or flag, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _project():
+    """Every import of project code, in one place (imported lazily so that `fedjax-nav --help`
+    stays instant; re-point this line when the module moves)."""
+    from fedjax_nav.evaluation import EvalError, load_run
+
+    return load_run, EvalError
+
+
+FORMATS = ("numpy", "onnx")
+TEMPLATE = Path(__file__).with_name("policy_template.py")
+ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat: runtimes from 2022 on read it
+ONNX_IR_VERSION = 8  # the IR version of opset 17 (onnx would stamp its newest, which older runtimes refuse)
+
+
+class ExportError(ValueError):
+    """An export input (run directory, seed, agent, format, output folder) is invalid; the message says which."""
+
+
+# ----------------------------------------------------------------------------- weights
+
+
+def actor_weights(actor_params: dict, depth: int) -> dict[str, np.ndarray]:
+    """A flax Actor's params ({"params": {"Dense_i", "v_head", "omega_head"}}, one agent, no
+    leading axes) -> the flat float32 arrays of weights.npz (names of policy_template.actor_forward)."""
+    p = actor_params["params"] if "params" in actor_params else actor_params
+    out = {}
+    for i in range(depth):
+        out[f"hidden_{i}/kernel"] = np.asarray(p[f"Dense_{i}"]["kernel"], np.float32)
+        out[f"hidden_{i}/bias"] = np.asarray(p[f"Dense_{i}"]["bias"], np.float32)
+    for head in ("v_head", "omega_head"):
+        out[f"{head}/kernel"] = np.asarray(p[head]["kernel"], np.float32)
+        out[f"{head}/bias"] = np.asarray(p[head]["bias"], np.float32)
+    return out
+
+
+def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict | None = None):
+    """The actor as an onnx.ModelProto: input "obs" float32[batch, obs_size], output "action"
+    float32[batch, 2] = concat(sigmoid(v_head(x)), tanh(omega_head(x))), x = the hidden stack."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
+    obs_size = int(weights["hidden_0/kernel"].shape[0])
+    inits, nodes = [], []
+
+    def const(name, value):
+        inits.append(numpy_helper.from_array(np.asarray(value, np.float32), name))
+        return name
+
+    def gemm(x, prefix, out):
+        w, b = (
+            const(f"{prefix}.kernel", weights[f"{prefix}/kernel"]),
+            const(f"{prefix}.bias", weights[f"{prefix}/bias"]),
+        )
+        nodes.append(helper.make_node("Gemm", [x, w, b], [out], name=f"{prefix}.gemm"))
+        return out
+
+    def act(x, i):
+        out = f"h{i}"
+        if activation == "relu":
+            nodes.append(helper.make_node("Relu", [x], [out]))
+        elif activation == "tanh":
+            nodes.append(helper.make_node("Tanh", [x], [out]))
+        elif activation == "elu":
+            nodes.append(helper.make_node("Elu", [x], [out], alpha=1.0))
+        elif activation == "silu":  # x * sigmoid(x)
+            nodes.append(helper.make_node("Sigmoid", [x], [f"{x}.sig"]))
+            nodes.append(helper.make_node("Mul", [x, f"{x}.sig"], [out]))
+        elif activation == "gelu":  # flax's gelu: the tanh approximation, spelled out (Gelu is opset 20)
+            c = const(f"{x}.c", np.sqrt(2.0 / np.pi))
+            k = const(f"{x}.k", 0.044715)
+            half, one = const(f"{x}.half", 0.5), const(f"{x}.one", 1.0)
+            n = lambda op, ins, o: nodes.append(helper.make_node(op, ins, [o]))  # noqa: E731
+            n("Mul", [x, x], f"{x}.x2")
+            n("Mul", [f"{x}.x2", x], f"{x}.x3")
+            n("Mul", [k, f"{x}.x3"], f"{x}.kx3")
+            n("Add", [x, f"{x}.kx3"], f"{x}.inner")
+            n("Mul", [c, f"{x}.inner"], f"{x}.arg")
+            n("Tanh", [f"{x}.arg"], f"{x}.t")
+            n("Add", [one, f"{x}.t"], f"{x}.1t")
+            n("Mul", [half, f"{x}.1t"], f"{x}.cdf")
+            n("Mul", [x, f"{x}.cdf"], out)
+        else:
+            raise ExportError(f"unknown activation {activation!r}")
+        return out
+
+    x = "obs"
+    for i in range(depth):
+        x = act(gemm(x, f"hidden_{i}", f"z{i}"), i)
+    gemm(x, "v_head", "v_pre")
+    gemm(x, "omega_head", "omega_pre")
+    nodes.append(helper.make_node("Sigmoid", ["v_pre"], ["v"]))
+    nodes.append(helper.make_node("Tanh", ["omega_pre"], ["omega"]))
+    nodes.append(helper.make_node("Concat", ["v", "omega"], ["action"], axis=1))
+    graph = helper.make_graph(
+        nodes,
+        "fedjax_nav_actor",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
+        initializer=inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", ONNX_OPSET)], producer_name="fedjax_nav")
+    model.ir_version = ONNX_IR_VERSION
+    model.doc_string = (
+        "fedjax_nav DDPG actor: obs = (ranges[num_beams] m, goal distance m, goal bearing rad, "
+        "previous action) -> action = (v / v_max, omega / omega_max)"
+    )
+    for key, value in (metadata or {}).items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = str(key), value if isinstance(value, str) else json.dumps(value)
+    onnx.checker.check_model(model)
+    return model
+
+
+# ----------------------------------------------------------------------------- export
+
+
+def select(run, seed: int | None, agent: int | None) -> tuple[int, int, int]:
+    """(flat agent index of load_run's axis, seed, net) for --seed / --agent."""
+    seeds = sorted({int(s) for s in run.agent_seed})
+    seed = seeds[0] if seed is None else int(seed)
+    agent = 0 if agent is None else int(agent)
+    if seed not in seeds:
+        raise ExportError(
+            f"{run.run_dir / 'params.npz'}: --seed {seed} is not a seed of this run "
+            f"(seeds: {', '.join(map(str, seeds))})"
+        )
+    if not 0 <= agent < run.n_nets:
+        raise ExportError(
+            f"{run.run_dir / 'params.npz'}: --agent {agent} out of range: {run.cfg.method} has "
+            f"{run.n_nets} network(s) per seed (0..{run.n_nets - 1})"
+        )
+    flat = int(np.flatnonzero((run.agent_seed == seed) & (run.agent_net == agent))[0])
+    return flat, seed, agent
+
+
+def export_run(
+    run_dir: str | Path,
+    out: str | Path,
+    fmt: str = "numpy",
+    seed: int | None = None,
+    agent: int | None = None,
+    force: bool = False,
+) -> list[Path]:
+    """Export one actor of a run; returns the files written. Raises ExportError (one-line message)."""
+    load_run, EvalError = _project()
+    if fmt not in FORMATS:
+        raise ExportError(f"--format {fmt!r}: unknown format (choose from {', '.join(FORMATS)})")
+    if fmt == "onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError:
+            raise ExportError(
+                "--format onnx needs the onnx package (pip install onnx); --format numpy needs nothing more"
+            ) from None
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{out}: exists and is not a directory (--out)")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ExportError(f"{out}: exists and is not empty (--out); choose another folder or pass --force")
+    try:
+        run = load_run(run_dir)
+    except EvalError as e:
+        raise ExportError(str(e)) from None
+    flat, seed, agent = select(run, seed, agent)
+    cfg = run.cfg
+    e, d = cfg.env, cfg.ddpg
+    weights = actor_weights(_tree_map_index(run.actor_params, flat), d.depth)
+    obs_size = int(e.num_beams) + 4
+    meta = {
+        "format": fmt,
+        "num_beams": int(e.num_beams),
+        "max_range": float(e.max_range),
+        "v_max": float(e.v_max),
+        "omega_max": float(e.omega_max),
+        "dt": float(e.dt),
+        "goal_radius": float(e.goal_radius),
+        "collision_distance": float(e.collision_distance),
+        "run_dir": str(Path(run_dir).resolve()),
+        "method": cfg.method,
+        "seed": seed,
+        "agent": agent,
+        "agent_index": flat,
+        "network": {
+            "obs_size": obs_size,
+            "hidden": int(d.hidden),
+            "depth": int(d.depth),
+            "activation": d.activation,
+            "action_size": 2,
+            "layers": [[int(weights[f"hidden_{i}/kernel"].shape[0]), int(d.hidden)] for i in range(d.depth)]
+            + [[int(d.hidden), 1], [int(d.hidden), 1]],
+        },
+        "observation": [
+            "ranges[num_beams] (m, beam i at heading + 2 pi i / num_beams, clipped to max_range)",
+            "goal distance (m)",
+            "goal bearing relative to the heading (rad, [-pi, pi], ccw positive)",
+            "previous action v / v_max in [0, 1]",
+            "previous action omega / omega_max in [-1, 1]",
+        ],
+        "action": ["v / v_max in [0, 1] (sigmoid)", "omega / omega_max in [-1, 1] (tanh)"],
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("weights.npz", "policy.onnx", "policy.py", "meta.json"):  # --force: no stale files of another format
+        (out / name).unlink(missing_ok=True)
+    written = []
+    if fmt == "numpy":
+        meta["files"] = ["weights.npz", "policy.py", "meta.json"]
+        np.savez(out / "weights.npz", **weights)
+        written.append(out / "weights.npz")
+    else:
+        meta["files"] = ["policy.onnx", "policy.py", "meta.json"]
+        meta["onnx"] = {
+            "input": "obs",
+            "input_shape": ["batch", obs_size],
+            "output": "action",
+            "output_shape": ["batch", 2],
+            "opset": ONNX_OPSET,
+        }
+        model = onnx_model(
+            weights,
+            d.activation,
+            {
+                k: meta[k]
+                for k in ("num_beams", "max_range", "v_max", "omega_max", "dt", "run_dir", "seed", "agent", "network")
+            },
+        )
+        (out / "policy.onnx").write_bytes(model.SerializeToString())
+        written.append(out / "policy.onnx")
+    shutil.copyfile(TEMPLATE, out / "policy.py")
+    (out / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
+    written += [out / "policy.py", out / "meta.json"]
+    return written
+
+
+def _tree_map_index(tree: dict, i: int) -> dict:
+    return {k: _tree_map_index(v, i) if isinstance(v, dict) else np.asarray(v[i]) for k, v in tree.items()}
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add `export` to an argparse subparsers object; dispatch the parsed args to run_cli."""
+    p = subparsers.add_parser(
+        "export",
+        help="export one trained actor for a robot (numpy + policy.py, or ONNX)",
+        description="Export one actor of a training run as a folder usable without JAX: numpy "
+        "(weights.npz + policy.py) or onnx (policy.onnx), with meta.json. See docs/export.md.",
+    )
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a training run directory (config.yaml, params.npz)")
+    p.add_argument(
+        "--seed",
+        type=str,
+        default=None,
+        help="the run's PRNG seed to take the actor from (default: the run's first seed)",
+    )
+    p.add_argument("--agent", type=str, default=None, help="the network within that seed, 0..n_nets-1 (default 0)")
+    p.add_argument("--format", dest="format", default="numpy", help="numpy (default) or onnx")
+    p.add_argument("--out", required=True, help="output folder (created; must be empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --out folder")
+    p.set_defaults(func=run_cli)
+    return p
+
+
+def _int_flag(value: str | None, flag: str) -> int | None:
+    if value is None:
+        return None
+    try:
+        return int(value)
+    except ValueError:
+        raise ExportError(f"{flag} {value!r}: not an integer") from None
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Run `export` for parsed args; 0 on success, 2 (one line on stderr) on bad input."""
+    try:
+        seed, agent = _int_flag(args.seed, "--seed"), _int_flag(args.agent, "--agent")
+        if args.format not in FORMATS:
+            raise ExportError(f"--format {args.format!r}: unknown format (choose from {', '.join(FORMATS)})")
+        written = export_run(args.run_dir, args.out, args.format, seed, agent, getattr(args, "force", False))
+    except ExportError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # unwritable --out and the like
+        print(f"error: {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    meta = json.loads(Path(args.out, "meta.json").read_text())
+    print(
+        f"exported {meta['method']} seed {meta['seed']} agent {meta['agent']} ({args.format}) -> "
+        f"{', '.join(str(p) for p in written)}"
+    )
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry point (python -m fedjax_nav.deploy.export ...), until cli.py wires it."""
+    parser = argparse.ArgumentParser(prog="fedjax-nav")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_parser(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,316 @@
+"""A fedjax_nav navigation policy, exported for a robot: numpy and the standard library only.
+
+This file is copied into every exported folder by `fedjax-nav export` (it is
+`fedjax_nav/deploy/policy_template.py` in the project). It needs no JAX, flax or fedjax_nav:
+
+    from policy import Policy
+    policy = Policy("path/to/export")              # reads weights.npz and meta.json beside it
+    ranges = policy.scan_ranges(msg.ranges, msg.angle_min, msg.angle_increment,
+                                msg.range_min, msg.range_max)          # a sensor_msgs/LaserScan
+    obs = policy.observation(ranges, (x, y, yaw), (goal_x, goal_y), prev_action)
+    action = policy(obs)                            # (v / v_max, omega / omega_max)
+    v, omega = policy.velocity(action)              # m/s, rad/s  -> geometry_msgs/Twist
+
+Conventions (the simulator's, fedjax_nav.env.nav / fedjax_nav.env.geometry):
+
+- Beams: beam i points at heading + 2 pi i / num_beams (counter-clockwise, beam 0 straight ahead),
+  and reads the distance to the nearest obstacle along it, `max_range` when nothing is within
+  `max_range`.
+- Observation, float32[num_beams + 4]: the ranges (m, clipped to [0, max_range]), the goal
+  distance (m), the goal bearing relative to the heading (rad, wrapped to [-pi, pi],
+  counter-clockwise positive), and the previous action in network units.
+- Action (the network's output and units): (v / v_max in [0, 1], omega / omega_max in [-1, 1]);
+  v_max (m/s) and omega_max (rad/s) are the run's, in meta.json.
+- Scan pooling (`pool_scan`): a laser scan with more samples than the policy has beams is reduced
+  to one range per beam. Beam i's sector is the samples whose angle lies in
+  [beam angle - pi / num_beams, beam angle + pi / num_beams); with a 360-sample scan and 24 beams
+  each sector holds 15 samples, the beam's own direction among them.
+  mode="min" (default): the sector minimum. Never longer than the exact beam (the nearer obstacle
+  wins), so the robot sees obstacles a thin beam would miss; but it is not what the policy was
+  trained on: a wall seen at a slant, or an obstacle edge inside the sector, reads shorter than
+  the simulator's ray (measured on three shipped worlds: median 4-7 cm shorter, the 10 % worst
+  beams 0.8-1.1 m or more shorter; docs/export.md).
+  mode="nearest": the valid sample nearest the beam's angle, a thin ray like the simulator's
+  (identical to it when the scan has a sample at every beam angle, as 360 samples do).
+- Invalid scan values, as the simulator would see them:
+    +inf, or a finite value above range_max   -> no return: max_range (the simulator's reading
+                                                  when nothing is within range);
+    NaN, -inf, 0, negative, or below range_min -> no information: left out of the sector minimum
+                                                  (`invalid=None`, the default); a sector with no
+                                                  valid sample reads max_range. Pass e.g.
+                                                  `invalid=0.0` to count them as that range instead
+                                                  (conservative: an unreadable sector looks blocked).
+  Rationale: the simulator's robot never gets closer than the collision distance (0.25 m by
+  default) to an obstacle, while range_min of a TurtleBot3 LDS is about 0.12 m; readings below
+  range_min, and 0 / NaN (what LDS drivers report for no echo), are dropouts or the robot's own
+  body, not obstacles the policy was trained to react to.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+
+__all__ = [
+    "ACTIVATIONS",
+    "Policy",
+    "actor_forward",
+    "pool_scan",
+    "goal_features",
+    "build_observation",
+    "wrap_angle",
+    "yaw_from_quaternion",
+    "action_to_velocity",
+    "load_weights",
+    "load_meta",
+]
+
+
+# ----------------------------------------------------------------------------- the actor
+
+
+def _sigmoid(x):
+    # stable for large |x| (no overflow in exp)
+    e = np.exp(-np.abs(x))
+    return np.where(x >= 0, 1.0 / (1.0 + e), e / (1.0 + e)).astype(x.dtype)
+
+
+def _relu(x):
+    return np.maximum(x, 0.0).astype(x.dtype)
+
+
+def _elu(x):
+    return np.where(x > 0, x, np.expm1(np.minimum(x, 0.0))).astype(x.dtype)
+
+
+def _gelu(x):
+    # flax.linen.gelu = jax.nn.gelu(approximate=True): the tanh approximation
+    c = np.asarray(math.sqrt(2.0 / math.pi), x.dtype)
+    return (x * (0.5 * (1.0 + np.tanh(c * (x + 0.044715 * (x**3)))))).astype(x.dtype)
+
+
+def _silu(x):
+    return (x * _sigmoid(x)).astype(x.dtype)
+
+
+ACTIVATIONS = {"relu": _relu, "tanh": np.tanh, "elu": _elu, "gelu": _gelu, "silu": _silu}
+
+
+def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
+    """The flax Actor's forward pass: depth x (Dense(hidden) + activation), then two 1-unit heads,
+    sigmoid (v / v_max) and tanh (omega / omega_max). obs: [..., obs_size]; returns float32[..., 2].
+
+    weights: "hidden_{i}/kernel" [in, hidden], "hidden_{i}/bias" [hidden] for i < depth, and
+    "v_head/kernel" [hidden, 1], "v_head/bias" [1], "omega_head/kernel", "omega_head/bias".
+    """
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"unknown activation {activation!r} (known: {', '.join(ACTIVATIONS)})")
+    act = ACTIVATIONS[activation]
+    x = np.asarray(obs, np.float32)
+    depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
+    for i in range(depth):
+        x = act(x @ weights[f"hidden_{i}/kernel"] + weights[f"hidden_{i}/bias"])
+    v = _sigmoid(x @ weights["v_head/kernel"] + weights["v_head/bias"])
+    w = np.tanh(x @ weights["omega_head/kernel"] + weights["omega_head/bias"])
+    return np.concatenate([v, w], axis=-1).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- observations
+
+
+def pool_scan(
+    ranges,
+    angle_min: float,
+    angle_increment: float,
+    num_beams: int = 24,
+    max_range: float = 3.5,
+    range_min: float = 0.0,
+    range_max: float = math.inf,
+    angle_offset: float = 0.0,
+    invalid: float | None = None,
+    mode: str = "min",
+) -> np.ndarray:
+    """A LaserScan's ranges -> the policy's `num_beams` ranges, float32[num_beams] in [0, max_range].
+
+    Sample j is at angle_min + j * angle_increment (+ angle_offset: the laser's yaw in the robot's
+    base frame, 0 when the scan's frame faces forward, as TurtleBot3's base_scan does). Beam i's
+    sector holds the samples in [2 pi i / n - pi / n, 2 pi i / n + pi / n), n = num_beams.
+    mode="min": the beam reads the minimum of its sector (default; conservative: an obstacle
+    between two beams is seen). mode="nearest": the beam reads the valid sample nearest its angle
+    (a thin ray, like the simulator's own beams; equal to them when the scan has a sample at each
+    beam angle). Either way the reading is clipped to max_range, and a sector with no valid sample
+    reads max_range; see the module docstring for inf / NaN / 0 / below-range_min (`invalid`).
+    """
+    if mode not in ("min", "nearest"):
+        raise ValueError(f"mode must be 'min' or 'nearest', got {mode!r}")
+    r = np.asarray(ranges, np.float64).reshape(-1)
+    n = int(num_beams)
+    max_range = float(max_range)
+    rmin = max(float(range_min), 0.0)
+    rmax = float(range_max) if range_max is not None and float(range_max) > 0 else math.inf
+    with np.errstate(invalid="ignore"):
+        no_return = (r == np.inf) | (np.isfinite(r) & (r > rmax))
+        bad = ~no_return & (~np.isfinite(r) | (r <= 0.0) | (r < rmin))
+    vals = np.where(no_return, max_range, r)
+    if invalid is None:
+        vals = np.where(bad, np.inf, vals)  # left out (reads as "nothing here")
+    else:
+        vals = np.where(bad, float(invalid), vals)
+        bad = np.zeros_like(bad)
+    two_pi = 2.0 * math.pi
+    width = two_pi / n
+    ang = float(angle_min) + float(angle_offset) + np.arange(r.size, dtype=np.float64) * float(angle_increment)
+    shifted = np.mod(ang + 0.5 * width, two_pi)
+    sector = np.floor(shifted / width).astype(np.int64) % n
+    out = np.full(n, np.inf)
+    if mode == "min":
+        np.minimum.at(out, sector, vals)
+    else:  # per sector, the valid sample nearest the beam angle (ties: the first sample)
+        offset = np.abs(shifted - (sector + 0.5) * width)
+        order = np.lexsort((np.arange(r.size), offset, bad, sector))
+        first = np.ones(order.size, bool)
+        first[1:] = sector[order][1:] != sector[order][:-1]
+        out[sector[order][first]] = vals[order][first]
+    out = np.where(np.isfinite(out), out, max_range)  # empty or all-invalid sectors: no return
+    return np.clip(out, 0.0, max_range).astype(np.float32)
+
+
+def wrap_angle(a):
+    """To [-pi, pi], as the simulator does: atan2(sin a, cos a)."""
+    return np.arctan2(np.sin(a), np.cos(a))
+
+
+def goal_features(pose, goal) -> np.ndarray:
+    """(goal distance in m, goal bearing relative to the heading in rad, wrapped to [-pi, pi]).
+
+    pose: (x, y, yaw) in the odometry frame; goal: (x, y) in the same frame. Batched over leading
+    axes. float32[..., 2].
+    """
+    pose = np.asarray(pose, np.float64)
+    goal = np.asarray(goal, np.float64)
+    rel = goal[..., :2] - pose[..., :2]
+    dist = np.hypot(rel[..., 0], rel[..., 1])
+    bearing = wrap_angle(np.arctan2(rel[..., 1], rel[..., 0]) - pose[..., 2])
+    return np.stack([dist, bearing], axis=-1).astype(np.float32)
+
+
+def build_observation(ranges, pose, goal, prev_action) -> np.ndarray:
+    """The policy's observation float32[..., num_beams + 4], as NavEnv.observe builds it:
+    concat(ranges, goal distance, goal bearing, previous action in network units).
+
+    ranges: the pooled ranges (`pool_scan`), m; pose: (x, y, yaw); goal: (x, y);
+    prev_action: the last action sent, in network units (v / v_max, omega / omega_max), clipped
+    to [0, 1] x [-1, 1] as the simulator stores it; (0, 0) at the start of an episode.
+    """
+    ranges = np.asarray(ranges, np.float32)
+    prev = np.clip(np.asarray(prev_action, np.float32), [0.0, -1.0], [1.0, 1.0]).astype(np.float32)
+    feats = goal_features(pose, goal)
+    lead = np.broadcast_shapes(ranges.shape[:-1], feats.shape[:-1], prev.shape[:-1])
+    parts = [np.broadcast_to(p, lead + p.shape[-1:]) for p in (ranges, feats, prev)]
+    return np.concatenate(parts, axis=-1).astype(np.float32)
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Yaw (rad, about z) of an orientation quaternion, e.g. nav_msgs/Odometry pose.orientation."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def action_to_velocity(action, v_max: float, omega_max: float) -> tuple[float, float]:
+    """Network units -> (v m/s, omega rad/s), after clipping to the box as the simulator does."""
+    a = np.clip(np.asarray(action, np.float64).reshape(-1)[:2], [0.0, -1.0], [1.0, 1.0])
+    return float(a[0] * v_max), float(a[1] * omega_max)
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def load_meta(folder: str | None = None) -> dict:
+    with open(os.path.join(folder or HERE, "meta.json")) as f:
+        return json.load(f)
+
+
+def load_weights(folder: str | None = None) -> dict:
+    with np.load(os.path.join(folder or HERE, "weights.npz"), allow_pickle=False) as z:
+        return {k: np.asarray(z[k], np.float32) for k in z.files}
+
+
+class Policy:
+    """The exported actor with the run's settings (meta.json) and its observation helpers."""
+
+    def __init__(self, folder: str | None = None, weights: dict | None = None, meta: dict | None = None):
+        self.folder = folder or HERE
+        self.meta = meta if meta is not None else load_meta(self.folder)
+        self.weights = weights if weights is not None else load_weights(self.folder)
+        net = self.meta["network"]
+        self.activation = net["activation"]
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"{self.folder}: unknown activation {self.activation!r}")
+        self.num_beams = int(self.meta["num_beams"])
+        self.max_range = float(self.meta["max_range"])
+        self.v_max = float(self.meta["v_max"])
+        self.omega_max = float(self.meta["omega_max"])
+        self.dt = float(self.meta.get("dt", 0.1))
+        self.goal_radius = float(self.meta.get("goal_radius", 0.5))
+        self.obs_size = self.num_beams + 4
+        k = self.weights["hidden_0/kernel"]
+        if k.shape[0] != self.obs_size:
+            raise ValueError(
+                f"{self.folder}: weights take {k.shape[0]} inputs, meta.json says "
+                f"num_beams={self.num_beams} (obs size {self.obs_size})"
+            )
+
+    def __call__(self, obs) -> np.ndarray:
+        """obs float32[..., obs_size] -> action float32[..., 2] in network units."""
+        return actor_forward(self.weights, obs, self.activation)
+
+    act = __call__
+
+    def scan_ranges(
+        self,
+        ranges,
+        angle_min,
+        angle_increment,
+        range_min=0.0,
+        range_max=math.inf,
+        angle_offset=0.0,
+        invalid=None,
+        mode="min",
+    ) -> np.ndarray:
+        """`pool_scan` with this policy's num_beams and max_range."""
+        return pool_scan(
+            ranges,
+            angle_min,
+            angle_increment,
+            self.num_beams,
+            self.max_range,
+            range_min,
+            range_max,
+            angle_offset,
+            invalid,
+            mode,
+        )
+
+    def observation(self, ranges, pose, goal, prev_action=(0.0, 0.0)) -> np.ndarray:
+        ranges = np.asarray(ranges, np.float32)
+        if ranges.shape[-1] != self.num_beams:
+            raise ValueError(f"expected {self.num_beams} ranges, got {ranges.shape[-1]} (pool the scan first)")
+        return build_observation(ranges, pose, goal, prev_action)
+
+    def velocity(self, action) -> tuple[float, float]:
+        return action_to_velocity(action, self.v_max, self.omega_max)
+
+    def at_goal(self, pose, goal) -> bool:
+        """Whether the robot is within the run's goal radius (where a simulated episode ends)."""
+        return bool(goal_features(pose, goal)[0] < self.goal_radius)
+
+
+if __name__ == "__main__":  # a smoke test: python policy.py
+    p = Policy()
+    obs = p.observation(np.full(p.num_beams, p.max_range), (0.0, 0.0, 0.0), (1.0, 0.5))
+    print(json.dumps({"obs": [round(float(v), 4) for v in obs], "action": [float(v) for v in p(obs)]}))
