@@ -1,0 +1,78 @@
+"""Periodic evaluation during training (`run.eval_every`; docs/generalization.md): the greedy
+policy of every network on a small held-out suite, inside the compiled program.
+
+The probe is the training layer's own small rollout (training may not import evaluation): every
+network x room x goal of the suite (`run.eval_suite`, default the group "probe": 4 rooms per
+family, 2 goals each, from the test stream, disjoint from the "heldout" suites) driven from start
+0 by the greedy actor, noiseless, `NavEnv(mode="eval")`, at most `env.episode_length` steps; an
+episode succeeds when the robot reaches the goal before any collision. `success` gives the
+fraction of successful episodes per network, f32[n_nets]; the trainer reports it as the
+`eval_success` metric on every `eval_every`-th episode (NaN on the others).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from fedjax_nav.agents import ddpg
+from fedjax_nav.env import NavEnv, make_params
+from fedjax_nav.worlds.suites import suite_rooms
+
+CHUNK = 64  # steps per inner scan; the outer while_loop stops once every episode is over
+
+
+class Probe:
+    def __init__(self, cfg, nets, suite: str = "probe"):
+        e = cfg.env
+        self.world, self.families, self.seeds = suite_rooms(suite)
+        self.env = NavEnv(e.num_beams, e.max_range, e.episode_length, mode="eval", collision_test=e.collision_test)
+        self.nets = nets
+        self.T = e.episode_length
+        self.G = int(self.world.goals.shape[1])
+
+    def success(self, actors, hp) -> jax.Array:
+        """Success rate f32[n_nets] of the actors (leaves [n_nets, ...]) on the suite."""
+        values = {k[len("env.") :]: v for k, v in hp.items() if k.startswith("env.")}
+        params = make_params(self.world, **{k: v for k, v in values.items() if k in _ENV_FIELDS})
+        goals = jnp.arange(self.G)
+
+        def episode(actor, p, g):  # one network, one room, one goal
+            obs, state = self.env.reset(jax.random.key(0), p.replace(goal_index=g))
+            return obs, state, jnp.bool_(False), jnp.bool_(False)
+
+        def step(actor, p, carry):
+            obs, state, done, success = carry
+            action = ddpg.act(self.nets, actor, obs)
+            obs2, state2, _, term, trunc, info = self.env.step(jax.random.key(0), state, action, p)
+            new = (obs2, state2, done | term | trunc, success | (~done & info["goal"] & ~info["collision"]))
+            return jax.tree.map(lambda n, o: jnp.where(done, o, n), new, carry)
+
+        def run(actor, p, g):
+            carry = episode(actor, p, g)
+            n_chunks = -(-self.T // CHUNK)
+
+            def body(c):
+                i, carry = c
+                carry = jax.lax.fori_loop(0, CHUNK, lambda _, x: step(actor, p, x), carry)
+                return i + 1, carry
+
+            _, carry = jax.lax.while_loop(lambda c: (c[0] < n_chunks) & ~c[1][2], body, (jnp.int32(0), carry))
+            return carry[3] & (g < p.world.num_goals), g < p.world.num_goals
+
+        per_goal = jax.vmap(run, in_axes=(None, None, 0))
+        per_room = jax.vmap(per_goal, in_axes=(None, 0, None))
+        ok, valid = jax.vmap(per_room, in_axes=(0, None, None))(actors, params, goals)  # [nets, rooms, goals]
+        return jnp.sum(ok, (1, 2)) / jnp.maximum(jnp.sum(valid, (1, 2)), 1)
+
+
+_ENV_FIELDS = (
+    "dt",
+    "v_max",
+    "omega_max",
+    "goal_radius",
+    "collision_distance",
+    "reward_goal",
+    "reward_collision",
+    "progress_scale",
+)

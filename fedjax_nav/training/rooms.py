@@ -1,0 +1,140 @@
+"""The rooms of a training run (docs/generalization.md): the fixed playgrounds of `env.worlds`,
+procedural rooms drawn inside the compiled program, and random start/goal placement.
+
+    env.rooms = "fixed"        every robot keeps its `env.worlds` playground (today's program)
+    env.rooms = "procedural"   robot i gets a fresh room of family `env.room_families[i]` (one
+                               entry: every robot) every `env.room_every` episodes; the family
+                               "fixed" keeps that robot's `env.worlds` playground (mixed fleets)
+    env.placement = "random"   at every episode's reset, a random start pose and goal are drawn
+                               in the free space of each robot's room (clearance > D_c + 0.05 m)
+
+State: a procedural run's `TrainState` holds the robots' current rooms (`world`: World [robots],
+every robot padded to one shape that fits every family's rooms and every fixed playground) and
+`room_stream` (u32[], drawn once per seed at init). The rooms of block b = episode // room_every
+come from `train_room_key(room_stream + b * robots + robot)`: the training half of the room
+seeds, disjoint from every held-out test suite (`fedjax_nav.worlds.suites`). Drawing happens at
+the episode's reset, on the device, in the same compiled program (no recompilation, no host
+round trip). A fixed run's state has neither field (`None`): its program is unchanged.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fedjax_nav import worlds
+from fedjax_nav.env.geometry import nearest_distance
+from fedjax_nav.worlds import World, WorldError
+from fedjax_nav.worlds.procedural import generate
+from fedjax_nav.worlds.rooms import make_spec, parse_overrides
+from fedjax_nav.worlds.suites import common_shape, padded_spec, train_room_key
+
+FIXED = "fixed"
+ROOM_STREAM = 0x8007  # fold_in tag: the seed's room stream and placement draws (the run's key stream is untouched)
+PLACEMENT_TRIES = 64  # candidates per start / goal of random placement
+PLACEMENT_MARGIN = 0.05  # m over D_c that a random start or goal keeps from every obstacle
+MIN_START_GOAL = 1.0  # m, best effort: the first candidate goal this far from the start
+
+
+def parse_room_spec(text: str) -> dict:
+    """`env.room_spec` ("cylinders_max=4, goals_max=4") -> RoomSpec overrides (WorldError on a bad one)."""
+    items = [x.strip() for x in str(text or "").split(",") if x.strip()]
+    try:
+        return parse_overrides(items)
+    except WorldError as e:
+        raise WorldError(f"env.room_spec: {e}") from None
+
+
+class TrainRooms:
+    """Static description of a run's rooms, built from the Config (no traced values)."""
+
+    def __init__(self, cfg):
+        e = cfg.env
+        n = cfg.num_robots
+        self.num_robots = n
+        self.procedural = e.rooms == "procedural"
+        self.random_placement = e.placement == "random"
+        fixed = [worlds.load(w) for w in e.worlds]
+        if not self.procedural:
+            self.world = worlds.load_many(e.worlds)  # exactly the fixed program's World
+            self.families, self.groups = (FIXED,) * n, []
+            return
+        fams = tuple(e.room_families)
+        if 1 < len(fams) < n and len(e.worlds) == n:  # clients padded for a mesh (Trainer pad): copies of the last
+            fams = fams + (fams[-1],) * (n - len(fams))
+        if len(fams) not in (1, n):
+            raise WorldError(
+                f"env.room_families has {len(fams)} entries; give one (every robot) or one per robot ({n}, env.worlds)"
+            )
+        self.families = fams * n if len(fams) == 1 else fams
+        overrides = parse_room_spec(e.room_spec)
+        try:
+            specs = {f: make_spec(f, **overrides) for f in dict.fromkeys(self.families) if f != FIXED}
+        except WorldError as err:
+            raise WorldError(f"env.room_spec: {err}") from None
+        shapes = [(w.segments.shape[0], w.circles.shape[0], w.starts.shape[0], w.goals.shape[0]) for w in fixed]
+        self.shape = common_shape(specs.values(), shapes)
+        self.specs = {f: padded_spec(s, self.shape) for f, s in specs.items()}
+        self.world = worlds.stack([worlds.pad(w, *self.shape) for w in fixed])  # the "fixed" robots' rows
+        self.groups = [
+            (self.specs[f], np.array([i for i, g in enumerate(self.families) if g == f])) for f in self.specs
+        ]
+
+    def stream(self, key: jax.Array) -> jax.Array:
+        """A seed's room stream u32[] (from its init key, without consuming it)."""
+        return jax.random.bits(jax.random.fold_in(key, ROOM_STREAM), (), jnp.uint32)
+
+    def draw(self, stream: jax.Array, block: jax.Array) -> World:
+        """The robots' rooms of block `block` (World [robots]); pure JAX, jit/vmap-able."""
+        world = self.world
+        base = stream + jnp.asarray(block, jnp.uint32) * jnp.uint32(self.num_robots)
+        for spec, idx in self.groups:
+            keys = jax.vmap(train_room_key)(base + jnp.asarray(idx, jnp.uint32))
+            rooms = jax.vmap(lambda k, spec=spec: generate(k, spec))(keys)
+            world = jax.tree.map(lambda a, b, idx=idx: a.at[idx].set(b.astype(a.dtype)), world, rooms)
+        return world
+
+    def episode_world(self, state, hp, ep) -> tuple[object, World]:
+        """At an episode's reset: (state with its rooms renewed when due, the robots' World)."""
+        world = self.world
+        if self.procedural:
+            every = hp["env.room_every"]
+            world = jax.lax.cond(
+                ep % every == 0, lambda: self.draw(state.room_stream, ep // every), lambda: state.world
+            )
+            state = state.replace(world=world)
+        if self.random_placement:
+            keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_robots)
+            world = jax.vmap(place)(world, keys)
+        return state, world
+
+
+def place(world: World, key: jax.Array) -> World:
+    """One room with a random start pose and goal in its free space: each the first of
+    PLACEMENT_TRIES uniform candidates that keeps D_c + PLACEMENT_MARGIN from every obstacle
+    (the goal also at least MIN_START_GOAL m from the start, best effort); if none fits, the
+    room's own start 0 / goal 0. Every start / goal row becomes the drawn one."""
+    c = worlds.CLEARANCE + PLACEMENT_MARGIN
+    k_s, k_g, k_yaw = jax.random.split(key, 3)
+    half = jnp.maximum(world.size / 2 - c, 0.0)
+
+    def candidates(k):
+        p = jax.random.uniform(k, (PLACEMENT_TRIES, 2), minval=-1.0, maxval=1.0) * half
+        d = jax.vmap(lambda q: nearest_distance(world.segments, q, world.circles))(p)
+        return p, d > c
+
+    ps, ok_s = candidates(k_s)
+    start_xy = jnp.where(jnp.any(ok_s), ps[jnp.argmax(ok_s)], world.starts[0, :2])
+    pg, ok_g = candidates(k_g)
+    far = ok_g & (jnp.linalg.norm(pg - start_xy, axis=-1) >= MIN_START_GOAL)
+    pick = jnp.where(jnp.any(far), jnp.argmax(far), jnp.argmax(ok_g))
+    goal = jnp.where(jnp.any(ok_g), pg[pick], world.goals[0])
+    yaw = jax.random.uniform(k_yaw, (), minval=-jnp.pi, maxval=jnp.pi)
+    start = jnp.where(jnp.any(ok_s), jnp.concatenate([start_xy, yaw[None]]), world.starts[0])
+    return world.replace(
+        starts=jnp.broadcast_to(start, world.starts.shape),
+        num_starts=jnp.int32(1),
+        goals=jnp.broadcast_to(goal, world.goals.shape),
+        num_goals=jnp.int32(1),
+    )

@@ -1,0 +1,444 @@
+"""Procedural rooms: random playgrounds drawn in pure JAX, solvable by construction.
+
+`generate(key, spec)` draws one room as a `World` with fixed padded shapes (from the spec's
+maxima), so it jits and vmaps over keys; a training program can draw a fresh room per robot
+per episode inside `lax.scan`::
+
+    spec = RoomSpec(family="mixture")
+    rooms = jax.jit(jax.vmap(lambda k: generate(k, spec)))(keys)   # a stacked World [n, ...]
+
+Families (`RoomSpec.family`): ``cylinders`` (circles only), ``boxes`` (rotated rectangles
+only), ``walls`` (rooms and corridors: interior walls with one doorway each) and ``mixture``
+(all three). The spec's ranges of the kinds a family does not use are ignored and take no
+array space. Parameters, defaults and allowed ranges: `RoomSpec` and docs/generator.md.
+
+Solvability, by construction (no search, no resampling, no fallback needed)
+----------------------------------------------------------------------------
+Let ``c = D_c + clearance_margin`` (``D_c`` = `worlds.CLEARANCE` = 0.25 m, margin 0.05 m).
+
+1. Interior walls partition the room by binary space partition: each wall splits one current
+   rectangular sub-room into two, spans it from side to side, and has one doorway of width
+   ``w > 2 c``. Every sub-room keeps both sides >= ``room_side_min >= door_width_max + 2 c``,
+   the doorway lies at least ``c`` from the ends of its wall, and a later wall is only placed
+   where it stays at least ``w/2 + c`` from the centre of every existing doorway. Hence the
+   doorways form a tree connecting all final sub-rooms, and in every final sub-room ``R``
+   the *core* (``R`` shrunk by ``c``) is a convex rectangle whose points are at least ``c``
+   from every wall (walls only lie on sub-room boundaries, so any wall point is at least
+   ``dist(p, boundary of R)`` from ``p``). For each doorway with centre ``d`` and unit normal
+   ``n`` the crossing ``d - c n -> d + c n`` keeps ``>= min(w/2, room_side_min - c) > c``
+   from every wall, and its ends lie in the cores of the two sub-rooms it joins.
+2. Each sub-room gets a random *hub* in its core. Starts and goals are drawn in cores. The
+   *reserved network* is the set of segments start -> hub, goal -> hub (same sub-room) and,
+   per doorway, hub -> (d + c n) -> (d - c n) -> hub. Every segment lies in a convex core or
+   is a doorway crossing, so it keeps >= ``c`` from every wall, and the network is connected
+   (a star in each sub-room, joined along the tree of doorways).
+3. Cylinders and boxes are drawn only where they keep >= ``c`` from every segment of the
+   reserved network (exact point-segment / segment-segment distances; a candidate that fails
+   is redrawn, up to ``tries`` times, then that obstacle is dropped). Overlapping obstacles
+   are fine: >= ``c`` from each obstacle is >= ``c`` from their union.
+
+So from every start to every goal the path start -> hub -> (doorways) -> hub -> goal keeps a
+clearance >= ``c = D_c + margin > D_c`` from every obstacle: the robot never comes within the
+collision distance. This is sound without any grid or search because the guarantee is a
+property of the constructed network, checked with exact distances, and it costs one fixed,
+branch-free pass (cheap under vmap). The price: obstacles never block the reserved network,
+so the network (a random tree, not the straight start-goal line) is always free, and in small
+or crowded rooms fewer obstacles or walls than requested may fit (the info dict of
+`generate_with_info` reports the counts placed). `tests/test_generate.py` checks thousands of
+rooms against an independent float64 grid search.
+
+Held-out test rooms (the disjointness rule)
+-------------------------------------------
+A *room seed* is an integer in ``[0, 2**32)``; ``room_key(seed) = fold_in(key(ROOM_ROOT),
+seed)``. ``fold_in`` encrypts ``[0, seed]`` with threefry-2x32 under the root key, a block
+cipher, so distinct seeds give distinct keys. Seeds ``>= TEST_SEED_BASE = 2**31`` are reserved
+for the held-out `SUITES` (`is_test_seed`); training must draw rooms from `train_room_key(i)`,
+which maps any counter ``i`` into ``[0, 2**31)``. Test and training rooms therefore never share
+a key. (Keys made any other way, e.g. ``jax.random.key(s)``, differ from the test keys only with
+overwhelming probability.)
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+
+from fedjax_nav.worlds import World
+from fedjax_nav.worlds.rooms import (
+    _START_TRIES,
+    RoomSpec,
+    _counts,
+    check_spec,
+    padded_shape,
+)
+
+# ----------------------------------------------------------------------------- geometry (JAX)
+
+
+def _pt_seg(p, a, b):
+    """Distance from points p to segments a-b (all [..., 2], broadcast)."""
+    ab, ap = b - a, p - a
+    den = jnp.sum(ab * ab, -1)
+    t = jnp.clip(jnp.sum(ap * ab, -1) / jnp.where(den > 0, den, 1.0), 0.0, 1.0)
+    q = ap - t[..., None] * ab
+    return jnp.sqrt(jnp.sum(q * q, -1))
+
+
+def _seg_box(a, b, centre, half, yaw):
+    """Exact distance between segments a-b and solid rotated boxes (centre, half sides, yaw);
+    0 if the segment touches or enters the box. Shapes broadcast: a, b, centre, half [..., 2],
+    yaw [...].
+
+    In the box's frame: 0 if the segment clips the box (Liang-Barsky), else the distance between
+    two disjoint convex sets, attained at a vertex of one of them: min(segment ends to the box,
+    box corners to the segment).
+    """
+    cs, sn = jnp.cos(yaw), jnp.sin(yaw)
+
+    def local(p):
+        r = p - centre
+        return jnp.stack([cs * r[..., 0] + sn * r[..., 1], -sn * r[..., 0] + cs * r[..., 1]], -1)
+
+    p0, p1 = local(a), local(b)
+    d = p1 - p0
+    tiny = jnp.abs(d) < 1e-12
+    safe = jnp.where(tiny, 1.0, d)
+    ta, tb = (-half - p0) / safe, (half - p0) / safe
+    t_in = jnp.where(tiny, -jnp.inf, jnp.minimum(ta, tb)).max(-1)
+    t_out = jnp.where(tiny, jnp.inf, jnp.maximum(ta, tb)).min(-1)
+    parallel_out = jnp.any(tiny & (jnp.abs(p0) > half), -1)
+    clips = (jnp.maximum(t_in, 0.0) <= jnp.minimum(t_out, 1.0)) & ~parallel_out
+
+    def to_box(p):
+        q = jnp.maximum(jnp.abs(p) - half, 0.0)
+        return jnp.sqrt(jnp.sum(q * q, -1))
+
+    corners = jnp.stack(
+        [jnp.stack([sx * half[..., 0], sy * half[..., 1]], -1) for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))], -2
+    )  # [..., 4, 2]
+    to_seg = _pt_seg(corners, p0[..., None, :], p1[..., None, :]).min(-1)
+    return jnp.where(clips, 0.0, jnp.minimum(jnp.minimum(to_box(p0), to_box(p1)), to_seg))
+
+
+def _first_true(ok):
+    """(index of the first True along the last axis (0 if none), any True)."""
+    return jnp.argmax(ok, axis=-1), jnp.any(ok, axis=-1)
+
+
+def _pick(arr, idx):
+    """arr [..., T, ...k] at idx [...] along axis len(idx.shape)."""
+    return jnp.take_along_axis(arr, idx.reshape(idx.shape + (1,) * (arr.ndim - idx.ndim)), axis=idx.ndim).squeeze(
+        idx.ndim
+    )
+
+
+class _Uniforms:
+    """All of a room's randomness comes from ONE `jax.random.uniform` draw, sliced in order: one
+    threefry call instead of ~30 (XLA compiles every threefry call separately, and the compile
+    time of `generate` was dominated by them). With `flat=None` it only counts (the size of the
+    draw is found by tracing the generator once with a counting stream, `_num_uniforms`)."""
+
+    def __init__(self, flat):
+        self.flat, self.used = flat, 0
+
+    def u(self, shape=()):
+        shape = tuple(shape)
+        n = math.prod(shape)
+        if self.flat is None:
+            out = jnp.full(shape, 0.5, jnp.float32)
+        else:
+            out = self.flat[self.used : self.used + n].reshape(shape)
+        self.used += n
+        return out
+
+    def uniform(self, shape=(), minval=0.0, maxval=1.0):
+        return minval + self.u(shape) * (maxval - minval)
+
+    def randint(self, lo: int, hi: int, shape=()):
+        """Integers in [lo, hi] (inclusive)."""
+        return jnp.minimum(lo + jnp.floor(self.u(shape) * (hi - lo + 1)).astype(jnp.int32), hi)
+
+    def categorical(self, logits, shape=()):
+        """Indices drawn with probabilities softmax(logits)."""
+        return _gumbel_argmax(logits, self.u((*shape, logits.shape[-1])))
+
+
+def _gumbel_argmax(logits, u):
+    """The Gumbel-max trick: argmax(logits + Gumbel noise) from uniforms u [..., n]."""
+    return jnp.argmax(logits - jnp.log(-jnp.log(u)), axis=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _num_uniforms(spec: RoomSpec) -> int:
+    counter = _Uniforms(None)
+    jax.eval_shape(lambda: _build(counter, spec))
+    return counter.used
+
+
+# ----------------------------------------------------------------------------- the generator
+
+
+def _partition(rng: _Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
+    """Binary space partition of the room by up to K walls with one doorway each.
+
+    Returns rooms f32[K+1, 4] (x0, y0, x1, y1), active bool[K+1], wall segments f32[2K, 4]
+    (zero rows where no wall), door centres f32[K, 2], door normals f32[K, 2], placed bool[K].
+    """
+    rmin = spec.room_side_min
+    T = spec.tries
+    init = (
+        jnp.zeros((K + 1, 4), jnp.float32).at[0].set(jnp.stack([-W / 2, -H / 2, W / 2, H / 2])),  # rooms
+        jnp.zeros((K + 1,), bool).at[0].set(True),  # active rooms
+        jnp.zeros((K, 2), jnp.float32),  # door centres
+        jnp.zeros((K, 2), jnp.float32),  # door normals
+        jnp.zeros((K,), jnp.float32),  # door widths
+        jnp.zeros((K,), bool),  # walls placed
+        jnp.zeros((K, 2, 4), jnp.float32),  # the two segments of each wall
+    )
+    xs = (jnp.arange(K), rng.u((K, K + 1)), rng.u((K, T)), rng.u((K, T)), rng.u((K,)), rng.u((K,)))
+
+    def split(carry, x):  # one wall: a lax.scan step (compiles once, not K times)
+        rooms, active, door_pt, door_n, door_w, placed, wall_segs = carry
+        j, u_room, u_ax, u_pos, u_w, u_door = x
+        ext = rooms[:, 2:] - rooms[:, :2]  # [K+1, 2]: extent along x (split by a vertical wall), y
+        can = active[:, None] & (ext >= 2 * rmin)  # [K+1, 2]
+        room_ok = can.any(-1)
+        area = ext[:, 0] * ext[:, 1]
+        r = _gumbel_argmax(jnp.where(room_ok, jnp.log(jnp.maximum(area, 1e-6)), -jnp.inf), u_room)
+        R, ext_r, can_r = rooms[r], ext[r], can[r]
+        # axis 0: a vertical wall x = pos (splits the x extent); 1: a horizontal wall y = pos.
+        p0 = jnp.where(can_r[0] & can_r[1], ext_r[0] / (ext_r[0] + ext_r[1]), jnp.where(can_r[0], 1.0, 0.0))
+        ax = jnp.where(u_ax < p0, 0, 1)
+        lo_ax, hi_ax = R[ax], R[ax + 2]
+        pos = lo_ax + rmin + u_pos * jnp.maximum(hi_ax - lo_ax - 2 * rmin, 0.0)
+        vert = (ax == 0)[:, None]
+        a = jnp.where(
+            vert, jnp.stack([pos, jnp.broadcast_to(R[1], (T,))], -1), jnp.stack([jnp.broadcast_to(R[0], (T,)), pos], -1)
+        )
+        b = jnp.where(
+            vert, jnp.stack([pos, jnp.broadcast_to(R[3], (T,))], -1), jnp.stack([jnp.broadcast_to(R[2], (T,)), pos], -1)
+        )
+        # Keep w/2 + c from the centre of every existing doorway.
+        dd = _pt_seg(door_pt[None], a[:, None], b[:, None])  # [T, K]
+        ok = jnp.all(~placed[None] | (dd >= door_w[None] / 2 + c), axis=1) & can_r[ax]
+        t, any_ok = _first_true(ok)
+        place = (j < n_walls) & room_ok[r] & any_ok
+        ax_t, pos_t, a_t, b_t = ax[t], pos[t], a[t], b[t]
+        # The doorway: width w, centre at least w/2 + c from both ends of the wall.
+        w = spec.door_width_min + u_w * (spec.door_width_max - spec.door_width_min)
+        lo_w, hi_w = jnp.where(ax_t == 0, R[1], R[0]), jnp.where(ax_t == 0, R[3], R[2])
+        dc = lo_w + w / 2 + c + u_door * jnp.maximum(hi_w - lo_w - w - 2 * c, 0.0)
+        along = jnp.where(ax_t == 0, jnp.array([0.0, 1.0]), jnp.array([1.0, 0.0]))
+        normal = jnp.where(ax_t == 0, jnp.array([1.0, 0.0]), jnp.array([0.0, 1.0]))
+        centre = jnp.where(ax_t == 0, jnp.stack([pos_t, dc]), jnp.stack([dc, pos_t]))
+        segs = jnp.stack(
+            [jnp.concatenate([a_t, centre - (w / 2) * along]), jnp.concatenate([centre + (w / 2) * along, b_t])]
+        )
+        child_a = jnp.where(ax_t == 0, jnp.stack([R[0], R[1], pos_t, R[3]]), jnp.stack([R[0], R[1], R[2], pos_t]))
+        child_b = jnp.where(ax_t == 0, jnp.stack([pos_t, R[1], R[2], R[3]]), jnp.stack([R[0], pos_t, R[2], R[3]]))
+        return (
+            jnp.where(place, rooms.at[r].set(child_a).at[j + 1].set(child_b), rooms),
+            active.at[j + 1].set(place),
+            door_pt.at[j].set(jnp.where(place, centre, 0.0)),
+            door_n.at[j].set(normal),
+            door_w.at[j].set(jnp.where(place, w, 0.0)),
+            placed.at[j].set(place),
+            wall_segs.at[j].set(jnp.where(place, segs, 0.0)),
+        ), None
+
+    (rooms, active, door_pt, door_n, _, placed, wall_segs), _ = jax.lax.scan(split, init, xs)
+    wall_segs = wall_segs.reshape(2 * K, 4)
+    return rooms, active, wall_segs, door_pt, door_n, placed
+
+
+def _box_corners(centre, sides, yaw):
+    """Corners [..., 4, 2] of boxes (centre [..., 2], full sides [..., 2], yaw [...])."""
+    cs, sn = jnp.cos(yaw)[..., None], jnp.sin(yaw)[..., None]
+    local = jnp.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * 0.5  # [4, 2]
+    lx, ly = local[:, 0] * sides[..., :1], local[:, 1] * sides[..., 1:]  # [..., 4]
+    return jnp.stack([centre[..., :1] + cs * lx - sn * ly, centre[..., 1:] + sn * lx + cs * ly], -1)
+
+
+def generate_with_info(key: jax.Array, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
+    """`generate`, plus what was drawn: counts requested and placed (walls, boxes, cylinders),
+    whether the start-goal distance rule held, the sub-rooms and the reserved network."""
+    check_spec(spec)
+    rng = _Uniforms(jax.random.uniform(key, (_num_uniforms(spec),)))
+    return _build(rng, spec)
+
+
+def _build(rng: _Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
+    c = spec.clearance
+    n_cyl_slots, n_box_slots, K = _counts(spec)
+    S, G = spec.starts_max, spec.goals_max
+    M_out, C_out, S_out, G_out = padded_shape(spec)
+    W = rng.uniform((), spec.width_min, spec.width_max)
+    H = rng.uniform((), spec.height_min, spec.height_max)
+    size = jnp.stack([W, H])
+    n_starts = rng.randint(spec.starts_min, spec.starts_max)
+    n_goals = rng.randint(spec.goals_min, spec.goals_max)
+    n_walls_req = rng.randint(spec.walls_min, spec.walls_max) if K else jnp.int32(0)
+    n_cyl_req = rng.randint(spec.cylinders_min, spec.cylinders_max) if n_cyl_slots else jnp.int32(0)
+    n_box_req = rng.randint(spec.boxes_min, spec.boxes_max) if n_box_slots else jnp.int32(0)
+
+    # 1. Sub-rooms (one, the whole room, without walls).
+    if K:
+        rooms, active, wall_segs, door_pt, door_n, placed = _partition(rng, W, H, n_walls_req, spec, c, K)
+    else:
+        rooms = jnp.stack([-W / 2, -H / 2, W / 2, H / 2])[None]
+        active = jnp.ones((1,), bool)
+        wall_segs = jnp.zeros((0, 4), jnp.float32)
+        door_pt = door_n = jnp.zeros((0, 2), jnp.float32)
+        placed = jnp.zeros((0,), bool)
+    core_lo, core_hi = rooms[:, :2] + c, rooms[:, 2:] - c
+    core_ext = jnp.maximum(core_hi - core_lo, 0.0)
+    room_logits = jnp.where(active, jnp.log(jnp.maximum(core_ext[:, 0] * core_ext[:, 1], 1e-9)), -jnp.inf)
+    hubs = core_lo + rng.u((rooms.shape[0], 2)) * (core_hi - core_lo)
+
+    def room_of(p):  # the active sub-room strictly containing p [..., 2]
+        inside = (
+            active
+            & (p[..., None, 0] > rooms[:, 0])
+            & (p[..., None, 0] < rooms[:, 2])
+            & (p[..., None, 1] > rooms[:, 1])
+            & (p[..., None, 1] < rooms[:, 3])
+        )
+        return jnp.argmax(inside, axis=-1)
+
+    # 2. Goals, then starts (the farthest-first rule), uniformly in the cores by core area.
+    g_room = rng.categorical(room_logits, (G,))
+    goals = core_lo[g_room] + rng.u((G, 2)) * (core_hi[g_room] - core_lo[g_room])
+    g_active = jnp.arange(G) < n_goals
+    s_room_c = rng.categorical(room_logits, (S, _START_TRIES))
+    s_cand = core_lo[s_room_c] + rng.u((S, _START_TRIES, 2)) * (core_hi[s_room_c] - core_lo[s_room_c])
+    gd = jnp.sqrt(jnp.sum((s_cand[:, :, None] - goals[None, None]) ** 2, -1))  # [S, T, G]
+    gd = jnp.min(jnp.where(g_active, gd, jnp.inf), -1)
+    first, any_ok = _first_true(gd >= spec.min_start_goal_distance)
+    pick = jnp.where(any_ok, first, jnp.argmax(gd, -1))
+    starts_xy = _pick(s_cand, pick)
+    s_room = _pick(s_room_c, pick)
+    s_active = jnp.arange(S) < n_starts
+    distance_ok = jnp.all(~s_active | any_ok)
+    yaw = rng.uniform((S,), -jnp.pi, jnp.pi)
+
+    # 3. The reserved network: start/goal -> hub of its sub-room; per doorway hub -> crossing -> hub.
+    res_a = [starts_xy, goals]
+    res_b = [hubs[s_room], hubs[g_room]]
+    res_on = [s_active, g_active]
+    if K:
+        p1, p2 = door_pt + c * door_n, door_pt - c * door_n
+        h1, h2 = hubs[room_of(p1)], hubs[room_of(p2)]
+        res_a += [h1, p1, p2]
+        res_b += [p1, p2, h2]
+        res_on += [placed, placed, placed]
+    res_a, res_b, res_on = jnp.concatenate(res_a), jnp.concatenate(res_b), jnp.concatenate(res_on)
+
+    # 4. Obstacles: `tries` candidates each; the first that keeps c from the network is kept.
+    T = spec.tries
+    if n_cyl_slots:
+        rad = rng.uniform((n_cyl_slots, T), spec.radius_min, spec.radius_max)
+        half = jnp.maximum(size / 2 - rad[..., None], 0.0)
+        cen = -half + rng.u((n_cyl_slots, T, 2)) * 2 * half
+        d = _pt_seg(cen[:, :, None], res_a, res_b) - rad[..., None]  # [n, T, R]
+        ok = jnp.all(~res_on | (d >= c), -1)
+        t, any_ok = _first_true(ok)
+        cyl_on = any_ok & (jnp.arange(n_cyl_slots) < n_cyl_req)
+        circles = jnp.where(cyl_on[:, None], jnp.concatenate([_pick(cen, t), _pick(rad, t)[:, None]], -1), 0.0)
+    else:
+        circles = jnp.zeros((0, 3), jnp.float32)
+        cyl_on = jnp.zeros((0,), bool)
+    if n_box_slots:
+        sides = rng.uniform((n_box_slots, T, 2), spec.box_side_min, spec.box_side_max)
+        byaw = rng.uniform((n_box_slots, T), 0.0, jnp.pi)
+        half = jnp.maximum(size / 2 - jnp.linalg.norm(sides, axis=-1, keepdims=True) / 2, 0.0)
+        cen = -half + rng.u((n_box_slots, T, 2)) * 2 * half
+        d = _seg_box(res_a, res_b, cen[:, :, None], sides[:, :, None] / 2, byaw[..., None])  # [n, T, R]
+        ok = jnp.all(~res_on | (d >= c), -1)
+        t, any_ok = _first_true(ok)
+        box_on = any_ok & (jnp.arange(n_box_slots) < n_box_req)
+        corners = _box_corners(_pick(cen, t), _pick(sides, t), _pick(byaw, t))  # [n, 4, 2]
+        edges = jnp.concatenate([corners, jnp.roll(corners, -1, axis=-2)], -1)  # [n, 4, 4]
+        box_segs = jnp.where(box_on[:, None, None], edges, 0.0).reshape(-1, 4)
+        boxes = jnp.where(
+            box_on[:, None], jnp.concatenate([_pick(cen, t), _pick(sides, t), _pick(byaw, t)[:, None]], -1), 0.0
+        )
+    else:
+        box_segs = jnp.zeros((0, 4), jnp.float32)
+        box_on = jnp.zeros((0,), bool)
+        boxes = jnp.zeros((0, 5), jnp.float32)
+
+    # 5. The World, padded to the spec's shapes (extra starts / goals repeat row 0).
+    hw, hh = W / 2, H / 2
+    outer = jnp.stack(
+        [
+            jnp.stack([-hw, -hh, hw, -hh]),
+            jnp.stack([hw, -hh, hw, hh]),
+            jnp.stack([hw, hh, -hw, hh]),
+            jnp.stack([-hw, hh, -hw, -hh]),
+        ]
+    )
+    segs = jnp.concatenate([outer, wall_segs, box_segs])
+    segs = jnp.concatenate([segs, jnp.zeros((M_out - segs.shape[0], 4), jnp.float32)])
+    circles = jnp.concatenate([circles, jnp.zeros((C_out - circles.shape[0], 3), jnp.float32)])
+    starts = jnp.concatenate([starts_xy, yaw[:, None]], -1)
+    starts = jnp.where(s_active[:, None], starts, starts[0])
+    starts = jnp.concatenate([starts, jnp.broadcast_to(starts[0], (S_out - S, 3))])
+    goals = jnp.where(g_active[:, None], goals, goals[0])
+    goals = jnp.concatenate([goals, jnp.broadcast_to(goals[0], (G_out - G, 2))])
+    world = World(
+        segments=segs.astype(jnp.float32),
+        circles=circles.astype(jnp.float32),
+        starts=starts.astype(jnp.float32),
+        num_starts=n_starts.astype(jnp.int32),
+        goals=goals.astype(jnp.float32),
+        num_goals=n_goals.astype(jnp.int32),
+        size=size.astype(jnp.float32),
+    )
+    info = {
+        "walls": jnp.sum(placed).astype(jnp.int32),
+        "walls_requested": jnp.asarray(n_walls_req, jnp.int32),
+        "boxes": jnp.sum(box_on).astype(jnp.int32),
+        "boxes_requested": jnp.asarray(n_box_req, jnp.int32),
+        "cylinders": jnp.sum(cyl_on).astype(jnp.int32),
+        "cylinders_requested": jnp.asarray(n_cyl_req, jnp.int32),
+        "box_rows": boxes,
+        "box_on": box_on,
+        "distance_ok": distance_ok,
+        "rooms": rooms,
+        "rooms_active": active,
+        "reserved": jnp.concatenate([res_a, res_b], -1),
+        "reserved_on": res_on,
+    }
+    return world, info
+
+
+def generate(key: jax.Array, spec: RoomSpec) -> World:
+    """One procedural room for `key` (pure JAX: jit and vmap over keys; `spec` is static).
+
+    Every World of one spec has the shapes `padded_shape(spec)`: segments rows are the 4 outer
+    walls, then 2 per interior wall slot, then 4 per box slot, then padding (zero rows); circles
+    one row per cylinder slot (zero rows unused). Every start reaches every goal with clearance
+    > D_c (see the module docstring for why). Raises WorldError for a bad spec (at trace time).
+    """
+    return generate_with_info(key, spec)[0]
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def generate_batch(keys: jax.Array, spec: RoomSpec) -> World:
+    """`generate` vmapped over keys [n] and jitted (compiled once per spec): a stacked World."""
+    return jax.vmap(lambda k: generate(k, spec))(keys)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def generate_batch_with_info(keys: jax.Array, spec: RoomSpec) -> tuple[World, dict]:
+    """`generate_with_info` vmapped over keys and jitted."""
+    return jax.vmap(lambda k: generate_with_info(k, spec))(keys)
+
+
+@functools.lru_cache(maxsize=16)
+def _jitted(spec: RoomSpec):
+    """The jitted one-room generator of a spec (shared by `suites.generate_to_file` and tests)."""
+    return jax.jit(lambda k: generate(k, spec))

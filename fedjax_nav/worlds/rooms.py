@@ -1,0 +1,234 @@
+"""Room specs of the procedural generator: `RoomSpec`, its allowed ranges and checks, the families.
+
+`fedjax_nav.worlds.procedural` draws the rooms (pure JAX), `fedjax_nav.worlds.suites` holds the
+room keys, the held-out test suites and world files. docs/generator.md describes all three.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from fedjax_nav.worlds import CLEARANCE, WorldError
+
+FAMILIES = ("cylinders", "boxes", "walls", "mixture")
+# Which obstacle kinds each family draws.
+_KINDS = {
+    "cylinders": ("cylinders",),
+    "boxes": ("boxes",),
+    "walls": ("walls",),
+    "mixture": ("cylinders", "boxes", "walls"),
+}
+_START_TRIES = 64  # candidates per start for the start-goal distance rule
+
+
+def _f(default, lo, hi, doc):
+    return dataclasses.field(default=default, metadata={"range": (lo, hi), "doc": doc})
+
+
+@dataclasses.dataclass(frozen=True)
+class RoomSpec:
+    """What `generate` draws. Lengths in m; every count and size is drawn uniformly from its
+    ``[*_min, *_max]`` range (integers inclusive). `check_spec` enforces the allowed ranges
+    (the ``range`` metadata of each field) and the rules between fields.
+
+    family: "cylinders", "boxes", "walls" or "mixture" (all three kinds); the ranges of the
+        kinds a family does not use are ignored.
+    width_*, height_*: the inner size of the room (walls at +-W/2, +-H/2).
+    cylinders_*, radius_*: number of cylinders and their radius.
+    boxes_*, box_side_*: number of boxes and their side lengths (each side drawn separately);
+        the yaw is uniform in [0, pi).
+    walls_*: number of interior dividing walls (a binary space partition into sub-rooms);
+        door_width_*: width of the one doorway in each wall (must exceed 2 (D_c + margin));
+        room_side_min: the smallest side of a sub-room (>= door_width_max + 2 (D_c + margin)).
+    starts_*, goals_*: number of starts and goals; start yaw is uniform in [-pi, pi).
+    min_start_goal_distance: each start is drawn (up to 64 candidates) at least this far from
+        every goal; if no candidate qualifies the farthest one is kept (best effort).
+    clearance_margin: the reserved paths keep D_c + clearance_margin from every obstacle.
+    tries: candidates drawn per obstacle or wall before it is dropped.
+    max_segments, max_circles, max_starts, max_goals: the padded array shapes; None = the
+        least that fits the spec (`padded_shape`), a larger value pads further (e.g. to stack
+        with other worlds).
+    """
+
+    family: str = "mixture"
+    width_min: float = _f(4.0, 3.0, 30.0, "room width, lower end (m)")
+    width_max: float = _f(12.0, 3.0, 30.0, "room width, upper end (m)")
+    height_min: float = _f(4.0, 3.0, 30.0, "room height, lower end (m)")
+    height_max: float = _f(12.0, 3.0, 30.0, "room height, upper end (m)")
+    cylinders_min: int = _f(2, 0, 32, "number of cylinders, lower end")
+    cylinders_max: int = _f(8, 0, 32, "number of cylinders, upper end")
+    radius_min: float = _f(0.15, 0.05, 2.0, "cylinder radius, lower end (m)")
+    radius_max: float = _f(0.5, 0.05, 2.0, "cylinder radius, upper end (m)")
+    boxes_min: int = _f(1, 0, 16, "number of boxes, lower end")
+    boxes_max: int = _f(5, 0, 16, "number of boxes, upper end")
+    box_side_min: float = _f(0.3, 0.1, 4.0, "box side length, lower end (m)")
+    box_side_max: float = _f(1.5, 0.1, 4.0, "box side length, upper end (m)")
+    walls_min: int = _f(1, 0, 8, "number of interior walls, lower end")
+    walls_max: int = _f(3, 0, 8, "number of interior walls, upper end")
+    door_width_min: float = _f(0.8, 0.1, 4.0, "doorway width, lower end (m)")
+    door_width_max: float = _f(1.2, 0.1, 4.0, "doorway width, upper end (m)")
+    room_side_min: float = _f(2.0, 0.5, 15.0, "smallest side of a sub-room (m)")
+    starts_min: int = _f(1, 1, 16, "number of starts, lower end")
+    starts_max: int = _f(4, 1, 16, "number of starts, upper end")
+    goals_min: int = _f(1, 1, 16, "number of goals, lower end")
+    goals_max: int = _f(2, 1, 16, "number of goals, upper end")
+    min_start_goal_distance: float = _f(2.0, 0.0, 20.0, "least start-goal distance (m)")
+    clearance_margin: float = _f(0.05, 0.01, 1.0, "extra clearance of the reserved paths over D_c (m)")
+    tries: int = _f(16, 1, 256, "candidates per obstacle or wall")
+    max_segments: int | None = _f(None, 4, 4096, "padded segment rows (None: least that fits)")
+    max_circles: int | None = _f(None, 1, 4096, "padded circle rows (None: least that fits)")
+    max_starts: int | None = _f(None, 1, 256, "padded start rows (None: starts_max)")
+    max_goals: int | None = _f(None, 1, 256, "padded goal rows (None: goals_max)")
+
+    def uses(self, kind: str) -> bool:
+        """Whether this spec's family draws `kind` ("cylinders", "boxes" or "walls")."""
+        return kind in _KINDS.get(self.family, ())
+
+    @property
+    def clearance(self) -> float:
+        """c = D_c + clearance_margin: the clearance the reserved paths keep."""
+        return CLEARANCE + self.clearance_margin
+
+
+SPEC_FIELDS = tuple(f.name for f in dataclasses.fields(RoomSpec))
+_INT_FIELDS = {f.name for f in dataclasses.fields(RoomSpec) if f.type in ("int", "int | None")}
+_OPTIONAL_FIELDS = {f.name for f in dataclasses.fields(RoomSpec) if "None" in str(f.type)}
+
+
+def field_ranges() -> dict[str, tuple[Any, Any, Any, str]]:
+    """{field: (default, low, high, description)} of every numeric RoomSpec field."""
+    return {
+        f.name: (f.default, *f.metadata["range"], f.metadata["doc"])
+        for f in dataclasses.fields(RoomSpec)
+        if "range" in f.metadata
+    }
+
+
+def _counts(spec: RoomSpec) -> tuple[int, int, int]:
+    """(cylinder slots, box slots, wall slots) this spec's family uses."""
+    return (
+        spec.cylinders_max if spec.uses("cylinders") else 0,
+        spec.boxes_max if spec.uses("boxes") else 0,
+        spec.walls_max if spec.uses("walls") else 0,
+    )
+
+
+def needed_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
+    """The least (segments, circles, starts, goals) rows that fit every room of the spec."""
+    n_cyl, n_box, n_wall = _counts(spec)
+    return 4 + 2 * n_wall + 4 * n_box, max(1, n_cyl), spec.starts_max, spec.goals_max
+
+
+def padded_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
+    """The (segments, circles, starts, goals) rows of every World `generate(key, spec)` returns."""
+    need = needed_shape(spec)
+    given = (spec.max_segments, spec.max_circles, spec.max_starts, spec.max_goals)
+    return tuple(n if g is None else g for n, g in zip(need, given))
+
+
+def check_spec(spec: RoomSpec) -> RoomSpec:
+    """Raise `WorldError` (one line naming the field and its allowed range) if `spec` is bad;
+    return it otherwise."""
+    if not isinstance(spec, RoomSpec):
+        raise WorldError(f"expected a RoomSpec, got {type(spec).__name__}")
+    if spec.family not in FAMILIES:
+        raise WorldError(f"RoomSpec field 'family' = {spec.family!r} is not allowed (allowed: {', '.join(FAMILIES)})")
+    ranges = field_ranges()
+    for name, (_, lo, hi, doc) in ranges.items():
+        v = getattr(spec, name)
+        if v is None and name in _OPTIONAL_FIELDS:
+            continue
+        is_int = isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+        kind = "an integer" if name in _INT_FIELDS else "a number"
+        ok_type = is_int if name in _INT_FIELDS else (is_int or isinstance(v, (float, np.floating)))
+        if not ok_type or not math.isfinite(float(v)):
+            raise WorldError(
+                f"RoomSpec field '{name}' = {v!r} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
+            )
+        if not lo <= v <= hi:
+            raise WorldError(f"RoomSpec field '{name}' = {v!r} is outside the allowed range [{lo}, {hi}] ({doc})")
+    for base in (
+        "width",
+        "height",
+        "cylinders",
+        "radius",
+        "boxes",
+        "box_side",
+        "walls",
+        "door_width",
+        "starts",
+        "goals",
+    ):
+        lo_v, hi_v = getattr(spec, f"{base}_min"), getattr(spec, f"{base}_max")
+        if hi_v < lo_v:
+            _, lo, hi, _ = ranges[f"{base}_max"]
+            raise WorldError(
+                f"RoomSpec field '{base}_max' = {hi_v!r} must be >= {base}_min = {lo_v!r} "
+                f"(allowed range [{lo_v}, {hi}])"
+            )
+    c = spec.clearance
+    if spec.uses("walls") and spec.walls_max > 0:
+        if not spec.door_width_min > 2 * c:
+            raise WorldError(
+                f"RoomSpec field 'door_width_min' = {spec.door_width_min!r} must be > 2 (D_c + "
+                f"clearance_margin) = {2 * c:g} m so the robot fits through a doorway (allowed range "
+                f"({2 * c:g}, {ranges['door_width_min'][2]}])"
+            )
+        lo_room = spec.door_width_max + 2 * c
+        hi_room = max(spec.width_min, spec.height_min) / 2
+        if not lo_room <= spec.room_side_min <= hi_room:
+            raise WorldError(
+                f"RoomSpec field 'room_side_min' = {spec.room_side_min!r} is outside the allowed range "
+                f"[door_width_max + 2 (D_c + clearance_margin), max(width_min, height_min) / 2] = "
+                f"[{lo_room:g}, {hi_room:g}] for this spec"
+            )
+    need = needed_shape(spec)
+    for name, n in zip(("max_segments", "max_circles", "max_starts", "max_goals"), need):
+        v = getattr(spec, name)
+        if v is not None and v < n:
+            raise WorldError(
+                f"RoomSpec field '{name}' = {v!r} is outside the allowed range [{n}, "
+                f"{ranges[name][2]}] for this spec (None: {n})"
+            )
+    return spec
+
+
+def make_spec(family: str = "mixture", **overrides) -> RoomSpec:
+    """A checked RoomSpec; an unknown field raises WorldError naming it."""
+    unknown = sorted(set(overrides) - set(SPEC_FIELDS))
+    if unknown:
+        raise WorldError(f"unknown RoomSpec field '{unknown[0]}' (allowed: {', '.join(SPEC_FIELDS)})")
+    return check_spec(RoomSpec(family=family, **overrides))
+
+
+def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
+    """``["field=value", ...]`` (the CLI's --set) -> typed overrides; WorldError on a bad one."""
+    out: dict[str, Any] = {}
+    for item in items or ():
+        name, sep, text = item.partition("=")
+        name, text = name.strip(), text.strip()
+        if not sep or not name:
+            raise WorldError(f"--set {item!r}: expected field=value, e.g. cylinders_max=4")
+        if name == "family":
+            raise WorldError("--set family=...: give the family with --family")
+        if name not in SPEC_FIELDS:
+            raise WorldError(
+                f"unknown RoomSpec field '{name}' (allowed: {', '.join(f for f in SPEC_FIELDS if f != 'family')})"
+            )
+        _, lo, hi, doc = field_ranges()[name]
+        if name in _OPTIONAL_FIELDS and text.lower() in ("none", "auto", "null"):
+            out[name] = None
+            continue
+        try:
+            out[name] = int(text) if name in _INT_FIELDS else float(text)
+        except ValueError:
+            kind = "an integer" if name in _INT_FIELDS else "a number"
+            raise WorldError(
+                f"RoomSpec field '{name}' = {text!r} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
+            ) from None
+    return out

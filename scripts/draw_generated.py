@@ -1,0 +1,139 @@
+"""Draw procedural rooms for docs/generator.md (PNGs under docs/img/generated/).
+
+    python scripts/draw_generated.py [--out docs/img/generated] [--rooms 4]
+    python scripts/draw_generated.py --time 4096     # time generating 4096 rooms per family, jitted
+
+For each family: `<family>.png`, rooms of room seeds 0 .. rooms-1 with the default spec (the same
+rooms as ``fedjax-nav worlds generate --family F --seed S``), drawn with
+`fedjax_nav.env.render.draw_world`. Plus `reserved.png`: two rooms with their reserved network
+(the paths kept clear of obstacles, see the solvability argument in docs/generator.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import sys
+import types
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from matplotlib.figure import Figure
+
+from fedjax_nav.env import render
+from fedjax_nav.worlds import procedural, rooms, suites
+
+gen = types.SimpleNamespace(**{**vars(rooms), **vars(procedural), **vars(suites)})
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def room(batch, i):
+    return jax.tree.map(lambda leaf: jnp.asarray(np.asarray(leaf)[i]), batch)
+
+
+def draw_family(family: str, n: int, out: Path, dpi: int) -> Path:
+    spec = gen.RoomSpec(family=family)
+    seeds = np.arange(n)
+    world, info = gen.generate_batch_with_info(jax.vmap(gen.room_key)(jnp.asarray(seeds)), spec)
+    fig = Figure(figsize=(3.3 * n, 3.6), layout="constrained")
+    for i, s in enumerate(seeds):
+        w = room(world, i)
+        W, H = np.asarray(w.size)
+        counts = ", ".join(f"{int(info[k][i])} {k}" for k in ("walls", "boxes", "cylinders") if spec.uses(k))
+        render.draw_world(fig.add_subplot(1, n, i + 1), w, title=f"{family}, seed {s}\n{W:.1f} x {H:.1f} m; {counts}")
+    path = out / f"{family}.png"
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def draw_reserved(out: Path, dpi: int) -> Path:
+    fig = Figure(figsize=(7.0, 3.8), layout="constrained")
+    for j, (family, seed) in enumerate((("mixture", 1), ("walls", 2))):
+        spec = gen.RoomSpec(family=family)
+        w, info = jax.jit(functools.partial(gen.generate_with_info, spec=spec))(gen.room_key(seed))
+        ax = fig.add_subplot(1, 2, j + 1)
+        render.draw_world(ax, w, title=f"{family}, seed {seed}: reserved network")
+        res, on = np.asarray(info["reserved"]), np.asarray(info["reserved_on"])
+        c = spec.clearance
+        from matplotlib.patches import Circle, Polygon, Rectangle
+
+        for x1, y1, x2, y2 in res[on]:
+            ax.plot([x1, x2], [y1, y2], color="#2ca02c", lw=1.0, ls="--", zorder=3)
+            # the band of half-width c around each path that obstacles keep out of
+            d = np.array([x2 - x1, y2 - y1])
+            n = np.array([-d[1], d[0]]) / max(np.linalg.norm(d), 1e-9) * c
+            a, b = np.array([x1, y1]), np.array([x2, y2])
+            ax.add_patch(
+                Polygon([a + n, b + n, b - n, a - n], closed=True, fc="#2ca02c", ec="none", alpha=0.12, zorder=1)
+            )
+            for q in (a, b):
+                ax.add_patch(Circle(q, c, fc="#2ca02c", ec="none", alpha=0.12, zorder=1))
+        rooms, act = np.asarray(info["rooms"]), np.asarray(info["rooms_active"])
+        for x0, y0, x1, y1 in rooms[act]:
+            ax.add_patch(
+                Rectangle(
+                    (x0 + c, y0 + c),
+                    x1 - x0 - 2 * c,
+                    y1 - y0 - 2 * c,
+                    fill=False,
+                    ec="#9467bd",
+                    lw=0.7,
+                    ls=":",
+                    zorder=1,
+                )
+            )
+    path = out / "reserved.png"
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def time_generation(n: int, repeats: int = 5) -> None:
+    """Print, per family: the first call of `generate_batch` on n keys (compile + run) and the
+    median of `repeats` further calls."""
+    import time
+
+    keys = jax.vmap(gen.train_room_key)(jnp.arange(n))
+    print(
+        f"jax {jax.__version__}, backend {jax.default_backend()}, {os.cpu_count()} CPUs, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
+    for family in gen.FAMILIES:
+        spec = gen.RoomSpec(family=family)
+        t = time.perf_counter()
+        jax.block_until_ready(gen.generate_batch(keys, spec))
+        first = time.perf_counter() - t
+        runs = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            jax.block_until_ready(gen.generate_batch(keys, spec))
+            runs.append(time.perf_counter() - t)
+        med = sorted(runs)[len(runs) // 2]
+        print(
+            f"{family:9s} {n} rooms: first call (compile + run) {first:5.1f} s; then median {med * 1e3:6.0f} ms "
+            f"({n / med:,.0f} rooms/s)"
+        )
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(ROOT / "docs" / "img" / "generated"))
+    ap.add_argument("--rooms", type=int, default=4)
+    ap.add_argument("--dpi", type=int, default=render.DPI)
+    ap.add_argument("--time", type=int, default=None, metavar="N", help="time generating N rooms instead of drawing")
+    args = ap.parse_args(argv)
+    if args.time:
+        time_generation(args.time)
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for family in gen.FAMILIES:
+        print(draw_family(family, args.rooms, out, args.dpi))
+    print(draw_reserved(out, args.dpi))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
