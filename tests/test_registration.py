@@ -1,0 +1,182 @@
+"""Registration with the libraries' registries: gymnasium ("fedjax_nav/Nav-v0", checked by
+gymnasium's and Stable-Baselines3's env checkers) and brax ("fedjax_nav")."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+# ----------------------------------------------------------------------------- gymnasium
+
+
+@pytest.fixture(scope="module")
+def gym():
+    gymnasium = pytest.importorskip("gymnasium")
+    from fedjax_nav.env import gym_env  # registers fedjax_nav/Nav-v0
+
+    return gymnasium, gym_env
+
+
+def test_gymnasium_make_passes_keyword_arguments(gym, tmp_path):
+    gymnasium, gym_env = gym
+    env = gymnasium.make(
+        "fedjax_nav/Nav-v0", world="train-2", episode_length=8, random_starts=True, v_max=0.5, num_beams=12
+    )
+    u = env.unwrapped
+    assert isinstance(u, gym_env.NavGymEnv)
+    assert env.spec.id == gym_env.ENV_ID == "fedjax_nav/Nav-v0" and env.spec.max_episode_steps is None
+    assert u.world_name == "train-2" and u.nav.episode_length == 8 and u.nav.num_beams == 12
+    assert float(u.params.v_max) == 0.5
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (16,) and env.observation_space.contains(obs)
+    # truncated by the env's own time limit (no TimeLimit wrapper is registered)
+    flags = [env.step(np.zeros(2, np.float32))[2:4] for _ in range(8)]
+    assert flags == [(False, False)] * 7 + [(False, True)]
+
+    # a world file by path, and the defaults (train-0, 1024 steps)
+    path = tmp_path / "box.json"
+    path.write_text(json.dumps({"size": [3.0, 3.0], "starts": [[0.0, 0.0, 0.0]], "goals": [[-1.0, 1.0]]}))
+    assert gymnasium.make("fedjax_nav/Nav-v0", world=path).unwrapped.world_name == str(path)
+    d = gymnasium.make("fedjax_nav/Nav-v0").unwrapped
+    assert d.world_name == "train-0" and d.nav.episode_length == 1024
+
+
+def test_register_again_is_a_no_op(gym):
+    gymnasium, gym_env = gym
+    spec = gymnasium.spec(gym_env.ENV_ID)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # gymnasium warns "Overriding environment" on re-registration
+        gym_env.register()
+    assert gymnasium.spec(gym_env.ENV_ID) is spec
+
+
+def test_gymnasium_check_env_on_the_made_env(gym):
+    gymnasium, _ = gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = gymnasium.make("fedjax_nav/Nav-v0", world="train-0", episode_length=8, v_max=2.0)
+    check_env(env.unwrapped, skip_render_check=True)
+
+
+def test_make_without_importing_fedjax_nav_first():
+    """gymnasium >= 1.0 has no plugin entry points; "module:id" imports the module that registers."""
+    pytest.importorskip("gymnasium")
+    code = textwrap.dedent(
+        """
+        import sys, gymnasium
+        assert "fedjax_nav" not in sys.modules
+        env = gymnasium.make("fedjax_nav.env.gym_env:fedjax_nav/Nav-v0", world="train-3", episode_length=4)
+        assert type(env.unwrapped).__name__ == "NavGymEnv" and env.unwrapped.world_name == "train-3"
+        env.reset(seed=0)
+        print("OK")
+        """
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
+
+
+# ----------------------------------------------------------------------------- Stable-Baselines3
+
+
+def _sb3():
+    try:
+        import stable_baselines3  # noqa: F401  (needs torch)
+    except ImportError as e:
+        pytest.skip(
+            f"stable_baselines3 cannot be imported ({e}); install torch==2.13.0 (CPU wheel) "
+            "first, then stable-baselines3"
+        )
+
+
+def test_sb3_check_env_passes(gym):
+    _sb3()
+    gymnasium, _ = gym
+    from gymnasium.wrappers import RescaleAction
+    from stable_baselines3.common.env_checker import check_env
+
+    env = gymnasium.make("fedjax_nav/Nav-v0", world="train-0", episode_length=8, v_max=2.0)
+    # As registered: passes; SB3's one remark is that the action box [0, 1] x [-1, 1] (the
+    # actor's units) is not symmetric.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped, warn=True)
+        check_env(env, warn=True)
+    messages = {str(w.message) for w in caught}
+    assert all("symmetric and normalized Box action space" in m for m in messages), messages
+    # rescaled to [-1, 1]^2 as docs/gym.md shows: not even a warning
+    lo, hi = np.full(2, -1.0, np.float32), np.full(2, 1.0, np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(RescaleAction(env, lo, hi), warn=True)
+
+
+def test_sb3_ddpg_learns_a_few_steps(gym):
+    _sb3()
+    gymnasium, _ = gym
+    import torch
+    from gymnasium.wrappers import RescaleAction
+    from stable_baselines3 import DDPG
+
+    torch.set_num_threads(1)
+    env = RescaleAction(
+        gymnasium.make("fedjax_nav/Nav-v0", world="train-0", episode_length=32),
+        np.full(2, -1.0, np.float32),
+        np.full(2, 1.0, np.float32),
+    )
+    model = DDPG(
+        "MlpPolicy", env, learning_starts=32, batch_size=16, policy_kwargs=dict(net_arch=[16, 16]), seed=0, device="cpu"
+    )
+    model.learn(total_timesteps=64)  # two episodes (time limit 32), 32 updates
+    obs, _ = env.reset(seed=1)
+    action, _ = model.predict(obs, deterministic=True)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    assert model.num_timesteps == 64
+
+
+# ----------------------------------------------------------------------------- brax
+
+
+def test_brax_get_environment_and_create():
+    brax_env = pytest.importorskip("fedjax_nav.env.brax_env")  # imports brax, registers "fedjax_nav"
+    import jax
+    import jax.numpy as jnp
+    from brax import envs
+
+    assert brax_env.ENV_NAME == "fedjax_nav"
+    env = envs.get_environment("fedjax_nav", worlds=["train-0", "train-2"], playground=1, v_max=0.5)
+    assert isinstance(env, brax_env.BraxNavEnv)
+    assert env.num_playgrounds == 2 and env.playground == 1 and env.observation_size == 28
+    s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    for _ in range(3):
+        s = step(s, jnp.array([1.0, 0.0]))
+    assert int(s.pipeline_state.playground) == 1 and int(s.pipeline_state.nav.t) == 3
+    # full speed (a0 = 1 -> v = v_max = 0.5 m/s) for 3 steps of 0.1 s
+    moved = np.asarray(s.pipeline_state.nav.pose[:2]) - np.asarray(
+        env.reset(jax.random.PRNGKey(0)).pipeline_state.nav.pose[:2]
+    )
+    np.testing.assert_allclose(np.linalg.norm(moved), 0.15, atol=1e-5)
+    assert np.isfinite(float(s.reward)) and float(s.done) == 0.0
+
+    # brax.envs.create: the training wrappers (EpisodeWrapper, VmapWrapper, AutoResetWrapper)
+    wenv = envs.create("fedjax_nav", episode_length=5, batch_size=4, worlds="train-0")
+    ws = jax.jit(wenv.reset)(jax.random.PRNGKey(1))  # VmapWrapper splits it into batch_size keys
+    assert ws.obs.shape == (4, 28)
+    wstep = jax.jit(wenv.step)
+    for _ in range(5):
+        ws = wstep(ws, jnp.tile(jnp.array([-1.0, 0.0]), (4, 1)))  # stand still: the time limit
+    np.testing.assert_array_equal(ws.done, np.ones(4))
+    np.testing.assert_array_equal(ws.info["truncation"], np.ones(4))
