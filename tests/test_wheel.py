@@ -3,9 +3,10 @@ fresh virtual environment outside the repository, used from an empty directory: 
 `train` (tiny), `reproduce --scale ci --only tau` and `evaluate` find everything they need in
 the installed package, never in the checkout.
 
-The fresh venv gets the wheel itself without dependencies; the dependencies (jax, flax, ...)
-come from the test's own environment through a path entry, so the test needs no network and
-no second copy of jax. Only directory entries are added (not the test venv's .pth files), so the
+The wheel is built the way pip builds any sdist (an isolated build environment with the
+pyproject's setuptools); the fresh venv gets the wheel itself without dependencies, and the
+dependencies (jax, flax, ...) come from the test's own environment through a path entry, so no
+second copy of jax is installed. Only directory entries are added (not the test venv's .pth files), so the
 checkout's editable install cannot leak in: the test checks where `fedjax_nav` is imported from.
 """
 
@@ -44,7 +45,7 @@ def installed(tmp_path_factory):
     base = tmp_path_factory.mktemp("wheel")
     dist = base / "dist"
     r = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(dist), str(ROOT)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(ROOT)],
         capture_output=True,
         text=True,
         timeout=600,
