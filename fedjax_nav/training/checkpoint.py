@@ -191,7 +191,8 @@ def _one_line(e: BaseException) -> str:
     """An exception's message in one short line: its first line, without tensorstore's JSON specs."""
     text = (str(e).strip().splitlines() or [""])[0]
     text = re.sub(r"\s*(\[tensorstore_spec|\{).*", "", text).rstrip(" :,;[(") or type(e).__name__
-    return text if len(text) <= 240 else text[:237] + "..."
+    text = re.sub(r' in OCDBT database at local file "[^"]*"', "", text)  # the path is already in the message
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def _names(kp) -> tuple:
