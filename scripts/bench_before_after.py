@@ -2,7 +2,7 @@
 load drifts: alternating pairs is what makes the comparison fair).
 
     git worktree add /tmp/before <commit>
-    python scripts/bench_before_after.py --before /tmp/before --after . --repeat 3 [--episodes 2]
+    python scripts/bench_before_after.py --before /tmp/before --after . --repeat 3 [--episodes 5]
 
 Each measurement is a fresh process importing that checkout (PYTHONPATH), timing
 `bench_train(seeds=(1,), episodes=E)`: one thesis-scale FLDDPG seed, a steady chunk of E episodes
@@ -19,11 +19,12 @@ import subprocess
 import sys
 
 CODE = """
-import json, sys
-try:
+import json, os, sys
+if os.path.isdir("fedjax_nav/experiments"):
     from fedjax_nav.experiments import bench
-except ImportError:  # checkouts before the redesign
+else:  # checkouts before the redesign
     from fedjax_nav import bench
+assert os.path.abspath(bench.__file__).startswith(os.getcwd()), bench.__file__  # this checkout, not another
 row = bench.bench_train(seeds=(1,), episodes={episodes}, overrides={overrides!r})[0]
 print("RESULT " + json.dumps(row))
 """
@@ -49,7 +50,7 @@ def main() -> int:
     ap.add_argument("--before", required=True)
     ap.add_argument("--after", required=True)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--episodes", type=int, default=2)
+    ap.add_argument("--episodes", type=int, default=5, help="a divisor of 125 (the chunk of the thesis preset)")
     ap.add_argument("--set", action="append", default=[], help="config override for both")
     args = ap.parse_args()
     times = {"before": [], "after": []}
