@@ -61,6 +61,12 @@ def imports(path: Path) -> set[str]:
                 out |= {f"fedjax_nav.{a.name}" for a in node.names}
             elif base.startswith("fedjax_nav"):
                 out.add(base)
+                # `from fedjax_nav.evaluation import report`: the submodule too, where it is one
+                out |= {
+                    f"{base}.{a.name}"
+                    for a in node.names
+                    if (PKG.parent / base.replace(".", "/") / f"{a.name}.py").exists()
+                }
     return out
 
 
@@ -109,3 +115,22 @@ def test_sources_cite_only_files_of_the_repository():
         if name in p.read_text(errors="ignore")
     ]
     assert not hits, "\n".join(hits)
+
+
+def test_no_two_modules_import_each_other():
+    """Within a package too: no pair of modules imports each other (type-only imports included)."""
+    names = {module_name(p): p for p in sources()}
+    graph = {m: {i for i in imports(p) if i in names and i != m} for m, p in names.items()}
+    pairs = sorted(
+        {
+            tuple(sorted((a, b)))
+            for a, deps in graph.items()
+            for b in deps
+            if a in graph.get(b, set())
+            and not a.endswith(b)
+            and not b.endswith(a)
+            and names[a].name != "__init__.py"
+            and names[b].name != "__init__.py"
+        }
+    )
+    assert not pairs, pairs

@@ -14,17 +14,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav.evaluation.metrics import SELECTED_NOTE
-from fedjax_nav.evaluation.rollout import EvalError
-
-if TYPE_CHECKING:
-    from fedjax_nav.evaluation.runs import RunEvaluation
+from fedjax_nav.evaluation.rollout import EvalError, RunEvaluation
 
 EVAL_JSON = "eval.json"
 EPISODES_CSV = "eval_episodes.csv"

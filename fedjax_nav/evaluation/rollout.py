@@ -26,15 +26,17 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 from flax import struct
 
+from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.env.nav import EnvState, NavEnv, make_params
 from fedjax_nav.worlds import World
@@ -295,3 +297,40 @@ def evaluate_policy(
         seed=int(seed),
         wall_s=wall,
     )
+
+
+# ----------------------------------------------------------------------------- runs as data
+# (here, below both the API in runs.py and the file writing in report.py, which both use them)
+
+
+@dataclass
+class RunAgents:
+    """The trained actors of a run, flattened to one agent axis [A = seeds x nets]."""
+
+    run_dir: Path
+    cfg: Any  # fedjax_nav.config.Config
+    actor_params: dict  # leaves [A, ...]
+    agent_seed: np.ndarray  # i64[A] the run's PRNG seed of each agent
+    agent_net: np.ndarray  # i64[A] the network index within its seed
+    n_nets: int
+    num_robots: int
+
+    @property
+    def num_agents(self) -> int:
+        return len(self.agent_seed)
+
+
+@dataclass
+class RunEvaluation:
+    run: RunAgents
+    result: EvalResult
+    frame: pd.DataFrame
+    summary: dict  # what eval.json holds
+    world: World
+    world_meta: dict = field(default_factory=dict)
+    world_arg: str = "eval"  # the world as asked for (a shipped name or a file): names the folder
+
+    @property
+    def eval_dir(self) -> Path:
+        """Where this evaluation is kept by default: RUN/eval/<world>/ (rundir.eval_dir)."""
+        return rundir.eval_dir(self.run.run_dir, self.world_arg)

@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
@@ -33,27 +31,10 @@ from fedjax_nav.evaluation.rollout import (
     ATTEMPTS,
     RANGE_NOISE,
     EvalError,
-    EvalResult,
+    RunAgents,
+    RunEvaluation,
     evaluate_policy,
 )
-from fedjax_nav.worlds import World
-
-
-@dataclass
-class RunAgents:
-    """The trained actors of a run, flattened to one agent axis [A = seeds x nets]."""
-
-    run_dir: Path
-    cfg: Any  # fedjax_nav.config.Config
-    actor_params: dict  # leaves [A, ...]
-    agent_seed: np.ndarray  # i64[A] the run's PRNG seed of each agent
-    agent_net: np.ndarray  # i64[A] the network index within its seed
-    n_nets: int
-    num_robots: int
-
-    @property
-    def num_agents(self) -> int:
-        return len(self.agent_seed)
 
 
 @functools.lru_cache(maxsize=16)
@@ -136,22 +117,6 @@ def load_run(run_dir: str | Path) -> RunAgents:
     seeds = np.repeat(np.arange(S) + cfg.run.seed, n_nets)
     nets_idx = np.tile(np.arange(n_nets), S)
     return RunAgents(run_dir, cfg, actor, seeds, nets_idx, n_nets, n_robots)
-
-
-@dataclass
-class RunEvaluation:
-    run: RunAgents
-    result: EvalResult
-    frame: pd.DataFrame
-    summary: dict  # what eval.json holds
-    world: World
-    world_meta: dict = field(default_factory=dict)
-    world_arg: str = "eval"  # the world as asked for (a shipped name or a file): names the folder
-
-    @property
-    def eval_dir(self) -> Path:
-        """Where this evaluation is kept by default: RUN/eval/<world>/ (rundir.eval_dir)."""
-        return rundir.eval_dir(self.run.run_dir, self.world_arg)
 
 
 def evaluate_run(
