@@ -16,7 +16,7 @@ import numpy as np
 
 from fedjax_nav import rundir
 from fedjax_nav.training.hparams import HParams
-from fedjax_nav.training.run import metrics_frame, summarize
+from fedjax_nav.training.metrics import metrics_frame, summarize
 from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget, plan
 from fedjax_nav.training.sweep.spec import Job
 from fedjax_nav.training.tblog import TensorBoardLog
