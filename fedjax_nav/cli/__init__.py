@@ -27,6 +27,29 @@ from fedjax_nav.cli.commands import (  # noqa: F401  (UserError: the commands' i
 )
 
 
+def _batch_flags(p: argparse.ArgumentParser) -> None:
+    """The flags of the commands that train batches of runs (sweep, reproduce)."""
+    p.add_argument(
+        "--memory-budget",
+        default=None,
+        metavar="SIZE",
+        help="memory for one batch of runs, e.g. 4G (default: half of the available memory)",
+    )
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="spread each batch of runs over N devices (default: all; on CPU one per core)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fedjax-nav",
@@ -150,25 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=None, help="seeds per grid point (default: the file's)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a field of every point")
     p.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>); run again to resume")
-    p.add_argument(
-        "--memory-budget",
-        default=None,
-        metavar="SIZE",
-        help="memory for one batch of runs, e.g. 4G (default: half of the available memory)",
-    )
-    p.add_argument(
-        "--devices",
-        type=int,
-        default=None,
-        metavar="N",
-        help="spread each batch of runs over N devices (default: all; on CPU one per core)",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--tensorboard",
-        action="store_true",
-        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
-    )
+    _batch_flags(p)
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("reproduce", help="every experiment of thesis chapter 4 -> figures, tables, report.md")
@@ -181,20 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="report folder (default runs/reproduce-<scale>); run again to resume")
     p.add_argument("--only", default=None, metavar="A,B", help="comma-separated experiments (default: all)")
     p.add_argument("--seeds", type=int, default=None, help="seeds per setting (default: the scale's / each file's)")
-    p.add_argument("--memory-budget", default=None, metavar="SIZE", help="memory for one batch of runs, e.g. 4G")
-    p.add_argument(
-        "--devices",
-        type=int,
-        default=None,
-        metavar="N",
-        help="spread each batch of runs over N devices (default: all; on CPU one per core)",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--tensorboard",
-        action="store_true",
-        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
-    )
+    _batch_flags(p)
     p.set_defaults(func=_reproduce)
 
     p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")

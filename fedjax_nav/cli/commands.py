@@ -144,43 +144,28 @@ def _auto_seed_devices(args: argparse.Namespace) -> bool:
 def _evaluate(args: argparse.Namespace) -> int:
     from fedjax_nav.evaluation import EvalError, evaluate_runs
 
-    if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
-        from fedjax_nav.evaluation.suite import evaluate_suite_runs
-
-        try:
-            evaluate_suite_runs(
-                args.run_dirs,
-                args.suite,
-                attempts=args.attempts,
-                range_noise=args.range_noise,
-                action_noise=args.action_noise,
-                seed=args.seed,
-                max_steps=args.max_steps,
-                out=args.out,
-            )
-        except EvalError as e:
-            raise UserError(str(e)) from None
-        return 0
-    robot = None
-    if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
-        from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
-
-        if args.robot not in ROBOT_MODELS:
-            raise UserError(f"--robot: unknown model {args.robot!r} (models: {', '.join(ROBOT_MODELS)})")
-        robot = RobotConfig(model=args.robot)
+    common = dict(
+        attempts=args.attempts,
+        range_noise=args.range_noise,
+        action_noise=args.action_noise,
+        seed=args.seed,
+        max_steps=args.max_steps,
+        out=args.out,
+    )
     try:
-        evaluate_runs(
-            args.run_dirs,
-            world=args.world,
-            attempts=args.attempts,
-            range_noise=args.range_noise,
-            action_noise=args.action_noise,
-            seed=args.seed,
-            max_steps=args.max_steps,
-            out=args.out,
-            figures=not args.no_figures,
-            robot=robot,
-        )
+        if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
+            from fedjax_nav.evaluation.suite import evaluate_suite_runs
+
+            evaluate_suite_runs(args.run_dirs, args.suite, **common)
+            return 0
+        robot = None
+        if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
+            from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
+
+            if args.robot not in ROBOT_MODELS:
+                raise UserError(f"--robot: unknown model {args.robot!r} (models: {', '.join(ROBOT_MODELS)})")
+            robot = RobotConfig(model=args.robot)
+        evaluate_runs(args.run_dirs, world=args.world, figures=not args.no_figures, robot=robot, **common)
     except EvalError as e:
         raise UserError(str(e)) from None
     return 0
