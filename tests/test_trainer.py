@@ -442,15 +442,15 @@ def test_cli_train_end_to_end_on_the_paper_config(tmp_path, capsys):
 
 
 def test_a_new_episode_metric_is_one_line_in_the_table(monkeypatch):
-    """Per-step values leave the step scan; EPISODE_METRICS reduces them. A metric added there
-    (and nowhere else) comes out of the chunk, reduced over the episode's steps."""
+    """The step metrics are summed over the episode in the step scan; EPISODE_METRICS turns the
+    sums into episode values. A metric added there (and nowhere else) comes out of the chunk."""
     from fedjax_nav.training import trainer as trainer_module
 
-    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps_at_goal", lambda m: jnp.sum(m.goals > 0, 0))
-    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps", lambda m: jnp.int32(m.reward.shape[0]))
+    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "goal_rate", lambda m, T: m.goals / T)
+    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps", lambda m, T: jnp.int32(T))
     cfg = load_config(THESIS / "iddpg.yaml", TINY)
     tr, hp = Trainer(cfg), hparams_from_config(cfg)
     states = tr.init_seeds(jnp.arange(1), hp)
     _, m = jax.jit(lambda s, h: tr.chunk(s, h, jnp.int32(0), 1))(states, hp)
     assert np.all(np.asarray(m["steps"]) == T)
-    np.testing.assert_array_equal(np.asarray(m["steps_at_goal"]), np.asarray(m["goals"]))
+    np.testing.assert_allclose(np.asarray(m["goal_rate"]) * T, np.asarray(m["goals"]))

@@ -48,7 +48,7 @@ class EnvConfig:
         ("train-0", "train-2", "train-3", "train-4", "train-5"),
         doc="one playground per robot: shipped names or world files (static: loaded once per program)",
     )
-    episode_length: int = _f(1024, lo=1, doc="T, steps per episode (static)")
+    episode_length: int = _f(1024, lo=1, hi=1_000_000, doc="T, steps per episode (static)")
     num_beams: int = _f(24, lo=1, hi=1024, doc="lidar beams (static)")
     max_range: float = _f(3.5, lo=0.0, doc="m, lidar range (static)")
     collision_test: str = _f("exact", choices=("exact", "lidar"), doc="exact distance or min(lidar) (static)")

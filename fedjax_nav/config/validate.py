@@ -118,6 +118,11 @@ def check(cfg: Config, src: str = "<config>") -> None:
         )
     if federated and cfg.fed.period_unit == "steps" and cfg.fed.period > cfg.env.episode_length * cfg.run.episodes:
         raise ConfigError(f"{src}: fed.period ({cfg.fed.period} steps) is longer than the whole run")
+    if cfg.run.episodes * cfg.env.episode_length * cfg.num_robots >= 2**31:  # the int32 step counters
+        raise ConfigError(
+            f"{src}: run.episodes x env.episode_length x robots = "
+            f"{cfg.run.episodes * cfg.env.episode_length * cfg.num_robots:,} transitions; at most 2^31 - 1"
+        )
     _check_fed(cfg, src, federated)
     _check_rooms(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:

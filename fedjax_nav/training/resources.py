@@ -20,9 +20,6 @@ from fedjax_nav.training.trainer import Trainer
 
 # Host bytes per metrics row (episode x seed x robot): the arrays, the pandas frame and its CSV text.
 METRICS_ROW_BYTES = 16 * 8 * 3
-# Device bytes per step x robot x seed of an episode's per-step metrics (StepMetrics, reduced after
-# the episode's scan): ~16 float32 fields.
-STEP_BYTES = 16 * 4
 
 
 class ResourceError(ConfigError):
@@ -53,9 +50,9 @@ def _nbytes(tree) -> int:
 def memory_estimate(trainer: Trainer) -> dict[str, int]:
     """Bytes of a run of `trainer.cfg` by part (every seed): "buffers" (replay), "networks"
     (actors, critics, targets, Adam states, the aggregator's models), "env" (env states,
-    observations, counters), "metrics" (host tables of every episode), "steps" (an episode's
-    per-step metrics), "worlds", and "total": the state parts times STATE_BYTES_FACTOR (a chunk's
-    peak: donated state, outputs, copies) plus the others."""
+    observations, counters), "metrics" (host tables of every episode), "worlds", and "total":
+    the state parts times STATE_BYTES_FACTOR (a chunk's peak: donated state, outputs, copies)
+    plus the others."""
     cfg = trainer.cfg
     hp = hparams_from_config(cfg)
     shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
@@ -64,15 +61,13 @@ def memory_estimate(trainer: Trainer) -> dict[str, int]:
     networks = (_nbytes(shapes.agents) + _nbytes(shapes.agg_state)) * S
     env = _nbytes(shapes) * S - buffers - networks
     metrics = cfg.run.episodes * S * cfg.num_robots * METRICS_ROW_BYTES
-    steps = cfg.env.episode_length * S * cfg.num_robots * STEP_BYTES
     worlds = _nbytes(trainer.world)
-    total = STATE_BYTES_FACTOR * (buffers + networks + env) + metrics + steps + worlds
+    total = STATE_BYTES_FACTOR * (buffers + networks + env) + metrics + worlds
     return {
         "buffers": buffers,
         "networks": networks,
         "env": env,
         "metrics": metrics,
-        "steps": steps,
         "worlds": worlds,
         "total": total,
     }
@@ -99,7 +94,6 @@ def check_memory(trainer: Trainer, budget: int | None = None, src: str = "config
         "networks": "ddpg.hidden",
         "env": "run.seeds",
         "metrics": "run.episodes",
-        "steps": "env.episode_length",
         "worlds": "env.worlds",
     }
     part = max(fields, key=lambda k: est[k])

@@ -20,14 +20,14 @@ config value, env constants included (each leaf a scalar, or [S] when swept over
 points): the env's `EnvParams` are built from it inside the program, so a sweep over
 `env.v_max` compiles once.
 
-Per-step values leave the step scan as outputs (`StepMetrics`) and are reduced per episode after
-it (`EPISODE_METRICS`): adding a metric is one field and one line in that table.
+Per-step values (`StepMetrics`) are summed over the episode in the step scan's carry and turned
+into episode metrics by `EPISODE_METRICS`: adding a metric is one line in that table (and a field
+when it needs a new per-step value).
 """
 
 from __future__ import annotations
 
 from functools import partial
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +45,7 @@ from fedjax_nav.federated import attacks
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
+from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite  # noqa: F401
 
 ENV_PREFIX = "env."
 ENV_PREFIXES = (ENV_PREFIX, "robot.")  # traced env.* and robot.* values that are EnvParams fields
@@ -326,18 +327,26 @@ class Trainer:
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), env_params)
         state = state.replace(obs=obs, env_state=env_state, key=key)
         steps = ep * self.T + jnp.arange(self.T)
-        state, per_step = jax.lax.scan(partial(self._step, hp, env_params), state, steps)
+        step = partial(self._step, hp, env_params)
+
+        def body(carry, g):  # the step metrics are summed in the carry: see EPISODE_METRICS
+            state, sums = carry
+            state, m = step(state, g)
+            return (state, jax.tree.map(jnp.add, sums, m)), None
+
+        zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(step, state, steps[0])[1])
+        (state, sums), _ = jax.lax.scan(body, (state, zeros), steps)
         fed_end, fs = jnp.int32(0), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
             fed_now = (ep + 1) % hp["fed.period"] == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
-        metrics = {name: reduce(per_step) for name, reduce in EPISODE_METRICS.items()}
+        metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
         metrics["fed_events"] = metrics["fed_events"] + fed_end
         metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
         metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
         metrics["epsilon"] = state.epsilon
-        metrics["params_finite"] = jax.vmap(_all_finite)((state.agents.actor, state.agents.critic))  # [n_nets]
+        metrics["params_finite"] = jax.vmap(all_finite)((state.agents.actor, state.agents.critic))  # [n_nets]
         if self.probe is not None:  # run.eval_every: greedy success on the held-out probe, NaN between
             every = self.cfg.run.eval_every
             metrics["eval_success"] = jax.lax.cond(
@@ -406,43 +415,3 @@ class Trainer:
         """Parameters of one agent (actor + critic), what one client sends per federated round."""
         st = jax.eval_shape(lambda k: ddpg.init_agent(self.nets, k, self.obs_size), jax.random.key(0))
         return int(sum(np.prod(x.shape) for x in jax.tree.leaves((st.actor, st.critic))))
-
-
-def _all_finite(tree) -> jax.Array:
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
-
-
-@struct.dataclass
-class StepMetrics:
-    """What one step reports (leaves [robots] or [nets]; scalars for the run-wide flags). The
-    step scan stacks them to [T, ...]."""
-
-    reward: jax.Array  # f32[robots]
-    goals: jax.Array  # i32[robots]
-    collisions: jax.Array  # i32[robots]
-    critic_loss: jax.Array  # f32[nets], 0 on steps without a gradient step
-    actor_loss: jax.Array  # f32[nets]
-    q: jax.Array  # f32[nets] mean Q of the batch
-    updates: jax.Array  # i32[] 1 on a gradient step
-    fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
-    fed_clients: jax.Array  # i32[] clients that exchanged models in that step's round
-    fed_skipped: jax.Array  # i32[] 1 if that round had too few participants
-
-
-def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:
-    return jnp.sum(x, 0) / jnp.maximum(jnp.sum(m.updates), 1)
-
-
-# Episode metric -> its reduction over the episode's [T, ...] step metrics.
-EPISODE_METRICS: dict[str, Callable[[StepMetrics], jax.Array]] = {
-    "reward": lambda m: jnp.sum(m.reward, 0) / m.reward.shape[0],  # mean reward per step, per robot
-    "goals": lambda m: jnp.sum(m.goals, 0),
-    "collisions": lambda m: jnp.sum(m.collisions, 0),
-    "critic_loss": lambda m: _per_update(m.critic_loss, m),  # mean over the episode's gradient steps
-    "actor_loss": lambda m: _per_update(m.actor_loss, m),
-    "q": lambda m: _per_update(m.q, m),
-    "fed_events": lambda m: jnp.sum(m.fed_events),
-    "fed_clients": lambda m: jnp.sum(m.fed_clients),
-    "fed_skipped": lambda m: jnp.sum(m.fed_skipped),
-}
-NO_ROUND = {"clients": np.int32(0), "skipped": np.int32(0)}  # what a step without a round reports

@@ -1,0 +1,58 @@
+"""What one training step reports and how an episode turns it into metrics.
+
+`StepMetrics` is one step's values; the step scan sums them over the episode in its carry and
+`EPISODE_METRICS` turns the sums into the episode's metrics (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+
+def all_finite(tree) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+@struct.dataclass
+class StepMetrics:
+    """What one step reports (leaves [robots] or [nets]; scalars for the run-wide flags). The
+    step scan sums them over the episode; a value that is not a sum of per-step values (a
+    maximum, a count of steps with a property) is a field here that the step sets, plus its
+    line in EPISODE_METRICS."""
+
+    reward: jax.Array  # f32[robots]
+    goals: jax.Array  # i32[robots]
+    collisions: jax.Array  # i32[robots]
+    critic_loss: jax.Array  # f32[nets], 0 on steps without a gradient step
+    actor_loss: jax.Array  # f32[nets]
+    q: jax.Array  # f32[nets] mean Q of the batch
+    updates: jax.Array  # i32[] 1 on a gradient step
+    fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
+    fed_clients: jax.Array  # i32[] clients that exchanged models in that step's round
+    fed_skipped: jax.Array  # i32[] 1 if that round had too few participants
+
+
+def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:
+    return x / jnp.maximum(m.updates, 1)
+
+
+# Episode metric -> its value from the episode's summed step metrics `m` and its length T. The
+# sums ride in the step scan's carry: stacked [T, ...] outputs reduced after the scan made the
+# trainer 3% slower here (docs/benchmarks.md, "The redesign's speed").
+EPISODE_METRICS: dict[str, Callable[[StepMetrics, int], jax.Array]] = {
+    "reward": lambda m, T: m.reward / T,  # mean reward per step, per robot
+    "goals": lambda m, T: m.goals,
+    "collisions": lambda m, T: m.collisions,
+    "critic_loss": lambda m, T: _per_update(m.critic_loss, m),  # mean over the episode's gradient steps
+    "actor_loss": lambda m, T: _per_update(m.actor_loss, m),
+    "q": lambda m, T: _per_update(m.q, m),
+    "fed_events": lambda m, T: m.fed_events,
+    "fed_clients": lambda m, T: m.fed_clients,
+    "fed_skipped": lambda m, T: m.fed_skipped,
+}
+NO_ROUND = {"clients": np.int32(0), "skipped": np.int32(0)}  # what a step without a round reports
