@@ -12,7 +12,12 @@ OUT=${OUT:-runs/reproduce-thesis}
 EXPERIMENTS=${*:-gamma rho buffer_iddpg buffer_seddpg buffer_snddpg buffer_flddpg fed_period_steps fed_period_episodes tau methods pw_beta rw_beta improvements}
 SEED_FLAG=${SEEDS:+--seeds $SEEDS}
 for e in $EXPERIMENTS; do
-  fedjax-nav reproduce --scale thesis --only "$e" $SEED_FLAG --out "$OUT" --quiet
+  # an aborted run (e.g. exit 134, a collective that missed XLA's 40 s timeout) resumes from its
+  # last checkpoint: up to three tries per experiment
+  for try in 1 2 3; do
+    fedjax-nav reproduce --scale thesis --only "$e" $SEED_FLAG --out "$OUT" --quiet && break
+    [ "$try" = 3 ] && exit 1
+  done
 done
 # one report over everything done so far (trains nothing new)
 fedjax-nav reproduce --scale thesis --only "$(echo $EXPERIMENTS | tr ' ' ',')" $SEED_FLAG --out "$OUT" --quiet
