@@ -435,3 +435,42 @@ def test_evaluation_imports_only_the_layers_below_it():
                     for a in node.names:
                         assert a.name in allowed, f"{path.name} imports fedjax_nav.{a.name}"
         assert len(path.read_text().splitlines()) < 400, path.name
+
+
+def test_byzantine_robots_are_summarized_apart(tiny_run, tmp_path, capsys):
+    """A run with fed.byzantine = 1: eval.json keeps every agent in `all_agents` and adds the
+    honest agents (net 0 of each seed) and the Byzantine ones (net 1) apart; the table and the
+    frame say which is which; the best agent per seed is an honest one."""
+    from fedjax_nav.evaluation import evaluate_run
+    from fedjax_nav.evaluation.report import summary_table
+
+    run_dir, world_file = tiny_run
+    dest = tmp_path / "byz"
+    dest.mkdir()
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    cfg["method"] = "flddpg"
+    cfg["fed"].update(byzantine=1, attack="noise")
+    (dest / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (dest / "params.npz").write_bytes((run_dir / "params.npz").read_bytes())
+    ev = evaluate_run(dest, world=world_file, attempts=2, max_steps=16)
+    df, s = ev.frame, ev.summary
+    assert (df["byzantine"] == (df["net"] == 1)).all()
+    for key, rows in (("honest_agents", df[df.net == 0]), ("byzantine_agents", df[df.net == 1])):
+        assert s[key]["overall"]["episodes"] == len(rows)
+        assert s[key]["overall"]["success_rate"] == pytest.approx(rows["success"].mean())
+    assert s["all_agents"]["overall"]["episodes"] == len(df)
+    assert all(a in set(df[df.net == 0]["agent"]) for a in s["best_agent_per_seed"]["agents"])
+    assert [a["byzantine"] for a in s["per_agent"]] == [False, True, False, True]
+    table = summary_table(s)
+    assert "honest agents" in table and "Byzantine" in table
+    # the held-out suites mark them too: the honest agents' success per family
+    from fedjax_nav.evaluation.suite import evaluate_suite
+
+    suite = evaluate_suite(dest, "probe", attempts=1, max_steps=8)
+    ep, fams = suite["episodes"], suite["families"]
+    assert (ep["byzantine"] == (ep["net"] == 1)).all()
+    want = ep[ep.net == 0].groupby("family")["success"].mean()
+    for _, row in fams[fams.family != "all"].iterrows():
+        assert row.success_honest == pytest.approx(want[row.family])
+    # a run without Byzantine robots has no such blocks
+    assert "honest_agents" not in evaluate_run(run_dir, world=world_file, attempts=1, max_steps=16).summary

@@ -2,8 +2,11 @@
 overall, for every agent (the headline) and for the best agent per seed (selected on the
 evaluation episodes themselves, and marked so).
 
-    episodes_frame(result, agent_seed, agent_net) -> DataFrame   one row per episode
+    episodes_frame(result, agent_seed, agent_net, agent_byzantine) -> DataFrame   one row per episode
     summarize(frame) -> dict                                      what eval.json's metrics hold
+
+A run with Byzantine robots (`fed.byzantine`) is also summarized for its honest agents and its
+Byzantine ones separately (`honest_agents`, `byzantine_agents`); `all_agents` stays every agent.
 """
 
 from __future__ import annotations
@@ -21,13 +24,18 @@ STRAIGHT_LINE_NOTE = (
 
 
 def episodes_frame(
-    result: EvalResult, agent_seed: np.ndarray | None = None, agent_net: np.ndarray | None = None
+    result: EvalResult,
+    agent_seed: np.ndarray | None = None,
+    agent_net: np.ndarray | None = None,
+    agent_byzantine: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """One row per episode: agent, seed, net, goal, attempt and the per-episode measurements."""
+    """One row per episode: agent, seed, net, byzantine (0/1), goal, attempt and the per-episode
+    measurements."""
     A, G, K = result.shape
     a, g, k = np.meshgrid(np.arange(A), np.arange(G), np.arange(K), indexing="ij")
     seed = np.zeros(A, int) if agent_seed is None else np.asarray(agent_seed)
     net = np.arange(A) if agent_net is None else np.asarray(agent_net)
+    byz = np.zeros(A, int) if agent_byzantine is None else np.asarray(agent_byzantine).astype(int)
     goal_row = result.goal_index[g.ravel()]
     outcome = np.where(
         result.success, "success", np.where(result.collision, "collision", np.where(result.timeout, "timeout", "other"))
@@ -37,6 +45,7 @@ def episodes_frame(
             "agent": a.ravel(),
             "seed": seed[a.ravel()],
             "net": net[a.ravel()],
+            "byzantine": byz[a.ravel()],
             "goal": goal_row,
             "attempt": k.ravel(),
             "goal_x": result.goals[g.ravel(), 0],
@@ -108,14 +117,31 @@ def best_agents(df: pd.DataFrame) -> list[int]:
 
 
 def summarize(df: pd.DataFrame) -> dict:
-    """The two aggregations: every agent (the headline) and the best agent per seed."""
-    best = best_agents(df)
-    per_agent = df.groupby("agent").agg(seed=("seed", "first"), net=("net", "first"), success_rate=("success", "mean"))
-    return {
+    """The two aggregations: every agent (the headline) and the best agent per seed; with
+    Byzantine agents in the frame also the honest and the Byzantine agents apart (the best agent
+    per seed is then chosen among the honest ones)."""
+    if "byzantine" not in df:  # frames written before the column existed
+        df = df.assign(byzantine=0)
+    byz = df["byzantine"].astype(bool)
+    best = best_agents(df[~byz] if byz.any() else df)
+    per_agent = df.groupby("agent").agg(
+        seed=("seed", "first"), net=("net", "first"), byzantine=("byzantine", "first"), success_rate=("success", "mean")
+    )
+    out = {
         "all_agents": _block(df),
         "best_agent_per_seed": {"note": SELECTED_NOTE, "agents": best, **_block(df[df["agent"].isin(best)])},
         "per_agent": [
-            {"agent": int(a), "seed": int(r.seed), "net": int(r.net), "success_rate": float(r.success_rate)}
+            {
+                "agent": int(a),
+                "seed": int(r.seed),
+                "net": int(r.net),
+                "byzantine": bool(r.byzantine),
+                "success_rate": float(r.success_rate),
+            }
             for a, r in per_agent.iterrows()
         ],
     }
+    if byz.any():
+        out["honest_agents"] = _block(df[~byz])
+        out["byzantine_agents"] = _block(df[byz])
+    return out

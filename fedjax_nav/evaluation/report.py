@@ -189,6 +189,9 @@ def summary_table(summary: dict) -> str:
     for g in s["all_agents"]["per_goal"]:
         lines.append(row(f"G{g['goal']} ({g['xy'][0]:g}, {g['xy'][1]:g})", g))
     lines.append(row("all agents", s["all_agents"]["overall"]))
+    for key, name in (("honest_agents", "honest agents"), ("byzantine_agents", "Byzantine")):
+        if key in s:  # a run with Byzantine robots (fed.byzantine)
+            lines.append(row(name, s[key]["overall"]))
     lines.append(row("best per seed*", s["best_agent_per_seed"]["overall"]))
     lines.append(f"* {SELECTED_NOTE}; agents {s['best_agent_per_seed']['agents']}")
     return "\n".join(lines)
@@ -213,6 +216,7 @@ def comparison_frame(summaries: dict[str, dict]) -> pd.DataFrame:
                 "efficiency_mean": o["efficiency_mean"],
                 "efficiency_std": o["efficiency_std"],
                 "best_per_seed_success": b["success_rate"],
+                "honest_success": s["honest_agents"]["overall"]["success_rate"] if "honest_agents" in s else None,
                 "world": s["world"],
                 "range_noise": s["noise"]["range_noise"],
                 "action_noise": s["noise"]["action_noise"],

@@ -319,6 +319,16 @@ class RunAgents:
     def num_agents(self) -> int:
         return len(self.agent_seed)
 
+    @property
+    def agent_byzantine(self) -> np.ndarray:
+        """bool[A]: the agents of the run's Byzantine robots (`fed.byzantine`: the last robots of
+        each seed, as in training; docs/robustness.md). All False without them, or when the
+        robots share one network."""
+        byz = int(getattr(self.cfg.fed, "byzantine", 0))
+        if byz == 0 or self.n_nets != self.num_robots:
+            return np.zeros(self.num_agents, bool)
+        return np.asarray(self.agent_net) >= self.num_robots - byz
+
 
 @dataclass
 class RunEvaluation:

@@ -171,7 +171,7 @@ def evaluate_run(
         robot=robot_kw,
         **robot_values,
     )
-    frame = episodes_frame(result, run.agent_seed, run.agent_net)
+    frame = episodes_frame(result, run.agent_seed, run.agent_net, run.agent_byzantine)
     summary = {
         "run_dir": str(run.run_dir),
         "method": cfg.method,

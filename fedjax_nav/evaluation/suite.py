@@ -108,6 +108,7 @@ def evaluate_suite(
             "room_seed": room_seeds[r.ravel()],
             "seed": run.agent_seed[a.ravel()],
             "net": run.agent_net[a.ravel()],
+            "byzantine": run.agent_byzantine[a.ravel()].astype(int),
             "goal": g.ravel(),
             "attempt": k.ravel(),
             "success": out["success"].ravel().astype(int),
@@ -164,6 +165,8 @@ def _family_row(name: str, ep: pd.DataFrame) -> dict:
         "ci_seeds_high": hi_s,
         "collision": float(ep["collision"].mean()),
         "timeout": float(ep["timeout"].mean()),
+        # the honest agents' success when the run had Byzantine robots (fed.byzantine), else NaN
+        "success_honest": float(ep.loc[ep.byzantine == 0, "success"].mean()) if ep.byzantine.any() else float("nan"),
     }
 
 
