@@ -425,7 +425,7 @@ def test_segment_box_distance_is_exact():
     cen, half, yaw = rng.uniform(-1, 1, (n, 2)), rng.uniform(0.05, 1.0, (n, 2)), rng.uniform(0, np.pi, n)
     yaw[250:350] = 0.0
     got = np.asarray(
-        gen._seg_box(
+        gen.seg_box(
             jnp.asarray(a, jnp.float32),
             jnp.asarray(b, jnp.float32),
             jnp.asarray(cen, jnp.float32),

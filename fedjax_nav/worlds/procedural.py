@@ -61,7 +61,6 @@ overwhelming probability.)
 from __future__ import annotations
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -74,106 +73,14 @@ from fedjax_nav.worlds.rooms import (
     check_spec,
     padded_shape,
 )
+from fedjax_nav.worlds.sampling import Uniforms, box_corners, first_true, gumbel_argmax, pt_seg, seg_box, take_rows
 
-# ----------------------------------------------------------------------------- geometry (JAX)
-
-
-def _pt_seg(p, a, b):
-    """Distance from points p to segments a-b (all [..., 2], broadcast)."""
-    ab, ap = b - a, p - a
-    den = jnp.sum(ab * ab, -1)
-    t = jnp.clip(jnp.sum(ap * ab, -1) / jnp.where(den > 0, den, 1.0), 0.0, 1.0)
-    q = ap - t[..., None] * ab
-    return jnp.sqrt(jnp.sum(q * q, -1))
-
-
-def _seg_box(a, b, centre, half, yaw):
-    """Exact distance between segments a-b and solid rotated boxes (centre, half sides, yaw);
-    0 if the segment touches or enters the box. Shapes broadcast: a, b, centre, half [..., 2],
-    yaw [...].
-
-    In the box's frame: 0 if the segment clips the box (Liang-Barsky), else the distance between
-    two disjoint convex sets, attained at a vertex of one of them: min(segment ends to the box,
-    box corners to the segment).
-    """
-    cs, sn = jnp.cos(yaw), jnp.sin(yaw)
-
-    def local(p):
-        r = p - centre
-        return jnp.stack([cs * r[..., 0] + sn * r[..., 1], -sn * r[..., 0] + cs * r[..., 1]], -1)
-
-    p0, p1 = local(a), local(b)
-    d = p1 - p0
-    tiny = jnp.abs(d) < 1e-12
-    safe = jnp.where(tiny, 1.0, d)
-    ta, tb = (-half - p0) / safe, (half - p0) / safe
-    t_in = jnp.where(tiny, -jnp.inf, jnp.minimum(ta, tb)).max(-1)
-    t_out = jnp.where(tiny, jnp.inf, jnp.maximum(ta, tb)).min(-1)
-    parallel_out = jnp.any(tiny & (jnp.abs(p0) > half), -1)
-    clips = (jnp.maximum(t_in, 0.0) <= jnp.minimum(t_out, 1.0)) & ~parallel_out
-
-    def to_box(p):
-        q = jnp.maximum(jnp.abs(p) - half, 0.0)
-        return jnp.sqrt(jnp.sum(q * q, -1))
-
-    corners = jnp.stack(
-        [jnp.stack([sx * half[..., 0], sy * half[..., 1]], -1) for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))], -2
-    )  # [..., 4, 2]
-    to_seg = _pt_seg(corners, p0[..., None, :], p1[..., None, :]).min(-1)
-    return jnp.where(clips, 0.0, jnp.minimum(jnp.minimum(to_box(p0), to_box(p1)), to_seg))
-
-
-def _first_true(ok):
-    """(index of the first True along the last axis (0 if none), any True)."""
-    return jnp.argmax(ok, axis=-1), jnp.any(ok, axis=-1)
-
-
-def _pick(arr, idx):
-    """arr [..., T, ...k] at idx [...] along axis len(idx.shape)."""
-    return jnp.take_along_axis(arr, idx.reshape(idx.shape + (1,) * (arr.ndim - idx.ndim)), axis=idx.ndim).squeeze(
-        idx.ndim
-    )
-
-
-class _Uniforms:
-    """All of a room's randomness comes from ONE `jax.random.uniform` draw, sliced in order: one
-    threefry call instead of ~30 (XLA compiles every threefry call separately, and the compile
-    time of `generate` was dominated by them). With `flat=None` it only counts (the size of the
-    draw is found by tracing the generator once with a counting stream, `_num_uniforms`)."""
-
-    def __init__(self, flat):
-        self.flat, self.used = flat, 0
-
-    def u(self, shape=()):
-        shape = tuple(shape)
-        n = math.prod(shape)
-        if self.flat is None:
-            out = jnp.full(shape, 0.5, jnp.float32)
-        else:
-            out = self.flat[self.used : self.used + n].reshape(shape)
-        self.used += n
-        return out
-
-    def uniform(self, shape=(), minval=0.0, maxval=1.0):
-        return minval + self.u(shape) * (maxval - minval)
-
-    def randint(self, lo: int, hi: int, shape=()):
-        """Integers in [lo, hi] (inclusive)."""
-        return jnp.minimum(lo + jnp.floor(self.u(shape) * (hi - lo + 1)).astype(jnp.int32), hi)
-
-    def categorical(self, logits, shape=()):
-        """Indices drawn with probabilities softmax(logits)."""
-        return _gumbel_argmax(logits, self.u((*shape, logits.shape[-1])))
-
-
-def _gumbel_argmax(logits, u):
-    """The Gumbel-max trick: argmax(logits + Gumbel noise) from uniforms u [..., n]."""
-    return jnp.argmax(logits - jnp.log(-jnp.log(u)), axis=-1)
+# ----------------------------------------------------------------------------- how many draws a spec uses
 
 
 @functools.lru_cache(maxsize=64)
 def _num_uniforms(spec: RoomSpec) -> int:
-    counter = _Uniforms(None)
+    counter = Uniforms(None)
     jax.eval_shape(lambda: _build(counter, spec))
     return counter.used
 
@@ -181,7 +88,7 @@ def _num_uniforms(spec: RoomSpec) -> int:
 # ----------------------------------------------------------------------------- the generator
 
 
-def _partition(rng: _Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
+def _partition(rng: Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
     """Binary space partition of the room by up to K walls with one doorway each.
 
     Returns rooms f32[K+1, 4] (x0, y0, x1, y1), active bool[K+1], wall segments f32[2K, 4]
@@ -207,7 +114,7 @@ def _partition(rng: _Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
         can = active[:, None] & (ext >= 2 * rmin)  # [K+1, 2]
         room_ok = can.any(-1)
         area = ext[:, 0] * ext[:, 1]
-        r = _gumbel_argmax(jnp.where(room_ok, jnp.log(jnp.maximum(area, 1e-6)), -jnp.inf), u_room)
+        r = gumbel_argmax(jnp.where(room_ok, jnp.log(jnp.maximum(area, 1e-6)), -jnp.inf), u_room)
         R, ext_r, can_r = rooms[r], ext[r], can[r]
         # axis 0: a vertical wall x = pos (splits the x extent); 1: a horizontal wall y = pos.
         p0 = jnp.where(can_r[0] & can_r[1], ext_r[0] / (ext_r[0] + ext_r[1]), jnp.where(can_r[0], 1.0, 0.0))
@@ -222,9 +129,9 @@ def _partition(rng: _Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
             vert, jnp.stack([pos, jnp.broadcast_to(R[3], (T,))], -1), jnp.stack([jnp.broadcast_to(R[2], (T,)), pos], -1)
         )
         # Keep w/2 + c from the centre of every existing doorway.
-        dd = _pt_seg(door_pt[None], a[:, None], b[:, None])  # [T, K]
+        dd = pt_seg(door_pt[None], a[:, None], b[:, None])  # [T, K]
         ok = jnp.all(~placed[None] | (dd >= door_w[None] / 2 + c), axis=1) & can_r[ax]
-        t, any_ok = _first_true(ok)
+        t, any_ok = first_true(ok)
         place = (j < n_walls) & room_ok[r] & any_ok
         ax_t, pos_t, a_t, b_t = ax[t], pos[t], a[t], b[t]
         # The doorway: width w, centre at least w/2 + c from both ends of the wall.
@@ -254,23 +161,15 @@ def _partition(rng: _Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
     return rooms, active, wall_segs, door_pt, door_n, placed
 
 
-def _box_corners(centre, sides, yaw):
-    """Corners [..., 4, 2] of boxes (centre [..., 2], full sides [..., 2], yaw [...])."""
-    cs, sn = jnp.cos(yaw)[..., None], jnp.sin(yaw)[..., None]
-    local = jnp.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * 0.5  # [4, 2]
-    lx, ly = local[:, 0] * sides[..., :1], local[:, 1] * sides[..., 1:]  # [..., 4]
-    return jnp.stack([centre[..., :1] + cs * lx - sn * ly, centre[..., 1:] + sn * lx + cs * ly], -1)
-
-
 def generate_with_info(key: jax.Array, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
     """`generate`, plus what was drawn: counts requested and placed (walls, boxes, cylinders),
     whether the start-goal distance rule held, the sub-rooms and the reserved network."""
     check_spec(spec)
-    rng = _Uniforms(jax.random.uniform(key, (_num_uniforms(spec),)))
+    rng = Uniforms(jax.random.uniform(key, (_num_uniforms(spec),)))
     return _build(rng, spec)
 
 
-def _build(rng: _Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
+def _build(rng: Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
     c = spec.clearance
     n_cyl_slots, n_box_slots, K = _counts(spec)
     S, G = spec.starts_max, spec.goals_max
@@ -316,10 +215,10 @@ def _build(rng: _Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]
     s_cand = core_lo[s_room_c] + rng.u((S, _START_TRIES, 2)) * (core_hi[s_room_c] - core_lo[s_room_c])
     gd = jnp.sqrt(jnp.sum((s_cand[:, :, None] - goals[None, None]) ** 2, -1))  # [S, T, G]
     gd = jnp.min(jnp.where(g_active, gd, jnp.inf), -1)
-    first, any_ok = _first_true(gd >= spec.min_start_goal_distance)
+    first, any_ok = first_true(gd >= spec.min_start_goal_distance)
     pick = jnp.where(any_ok, first, jnp.argmax(gd, -1))
-    starts_xy = _pick(s_cand, pick)
-    s_room = _pick(s_room_c, pick)
+    starts_xy = take_rows(s_cand, pick)
+    s_room = take_rows(s_room_c, pick)
     s_active = jnp.arange(S) < n_starts
     distance_ok = jnp.all(~s_active | any_ok)
     yaw = rng.uniform((S,), -jnp.pi, jnp.pi)
@@ -342,11 +241,11 @@ def _build(rng: _Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]
         rad = rng.uniform((n_cyl_slots, T), spec.radius_min, spec.radius_max)
         half = jnp.maximum(size / 2 - rad[..., None], 0.0)
         cen = -half + rng.u((n_cyl_slots, T, 2)) * 2 * half
-        d = _pt_seg(cen[:, :, None], res_a, res_b) - rad[..., None]  # [n, T, R]
+        d = pt_seg(cen[:, :, None], res_a, res_b) - rad[..., None]  # [n, T, R]
         ok = jnp.all(~res_on | (d >= c), -1)
-        t, any_ok = _first_true(ok)
+        t, any_ok = first_true(ok)
         cyl_on = any_ok & (jnp.arange(n_cyl_slots) < n_cyl_req)
-        circles = jnp.where(cyl_on[:, None], jnp.concatenate([_pick(cen, t), _pick(rad, t)[:, None]], -1), 0.0)
+        circles = jnp.where(cyl_on[:, None], jnp.concatenate([take_rows(cen, t), take_rows(rad, t)[:, None]], -1), 0.0)
     else:
         circles = jnp.zeros((0, 3), jnp.float32)
         cyl_on = jnp.zeros((0,), bool)
@@ -355,16 +254,15 @@ def _build(rng: _Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]
         byaw = rng.uniform((n_box_slots, T), 0.0, jnp.pi)
         half = jnp.maximum(size / 2 - jnp.linalg.norm(sides, axis=-1, keepdims=True) / 2, 0.0)
         cen = -half + rng.u((n_box_slots, T, 2)) * 2 * half
-        d = _seg_box(res_a, res_b, cen[:, :, None], sides[:, :, None] / 2, byaw[..., None])  # [n, T, R]
+        d = seg_box(res_a, res_b, cen[:, :, None], sides[:, :, None] / 2, byaw[..., None])  # [n, T, R]
         ok = jnp.all(~res_on | (d >= c), -1)
-        t, any_ok = _first_true(ok)
+        t, any_ok = first_true(ok)
         box_on = any_ok & (jnp.arange(n_box_slots) < n_box_req)
-        corners = _box_corners(_pick(cen, t), _pick(sides, t), _pick(byaw, t))  # [n, 4, 2]
+        corners = box_corners(take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t))  # [n, 4, 2]
         edges = jnp.concatenate([corners, jnp.roll(corners, -1, axis=-2)], -1)  # [n, 4, 4]
         box_segs = jnp.where(box_on[:, None, None], edges, 0.0).reshape(-1, 4)
-        boxes = jnp.where(
-            box_on[:, None], jnp.concatenate([_pick(cen, t), _pick(sides, t), _pick(byaw, t)[:, None]], -1), 0.0
-        )
+        rows = jnp.concatenate([take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t)[:, None]], -1)
+        boxes = jnp.where(box_on[:, None], rows, 0.0)
     else:
         box_segs = jnp.zeros((0, 4), jnp.float32)
         box_on = jnp.zeros((0,), bool)
