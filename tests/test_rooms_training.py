@@ -195,3 +195,50 @@ def test_a_procedural_state_saved_and_restored_continues_bitwise(tmp_path):
     for x, y in zip(ma, mb):
         for k in x:
             assert np.array_equal(x[k], y[k], equal_nan=True), k
+
+
+def test_density_thins_the_same_draws_and_one_is_the_unthinned_room():
+    """generate(key, spec, density): floor(density * n) of the requested walls, boxes and
+    cylinders, from the same draws; density 1 is bitwise the room without the argument."""
+    from fedjax_nav.worlds.procedural import generate, generate_with_info
+    from fedjax_nav.worlds.rooms import make_spec
+
+    spec = make_spec("mixture")
+    keys = jax.random.split(jax.random.key(3), 16)
+    full = jax.jit(jax.vmap(lambda k: generate(k, spec)))(keys)
+    one = jax.jit(jax.vmap(lambda k, d: generate(k, spec, d), in_axes=(0, None)))
+    for a, b in zip(jax.tree.leaves(full), jax.tree.leaves(one(keys, 1.0))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    info = jax.jit(jax.vmap(lambda k, d: generate_with_info(k, spec, d)[1], in_axes=(0, None)))
+    i1, ih, i0 = info(keys, 1.0), info(keys, 0.5), info(keys, 0.0)
+    for kind in ("walls", "boxes", "cylinders"):
+        req = np.asarray(i1[f"{kind}_requested"])
+        assert np.array_equal(np.asarray(ih[f"{kind}_requested"]), req // 2)
+        assert (np.asarray(ih[kind]) <= req // 2).all() and (np.asarray(i0[kind]) == 0).all()
+    assert np.asarray(i1["cylinders"]).sum() > 0  # the full rooms do have obstacles
+
+
+def test_curriculum_density_rises_in_one_compilation_and_is_checked(capsys):
+    """A run whose rooms start empty (env.room_density_start = 0) and fill over 2 episodes: episode
+    0's rooms have no cylinders, later ones do; changing the (traced) curriculum recompiles
+    nothing. On fixed rooms the curriculum fields are an error naming the field."""
+    from fedjax_nav.cli import main
+
+    sets = ["env.rooms=procedural", "env.room_families=[cylinders]", "env.room_spec=cylinders_min=3, cylinders_max=3"]
+    cfg = load_config(None, TINY + sets + ["env.room_density_start=0", "env.room_curriculum_episodes=2"])
+    tr, hp = Trainer(cfg), hparams_from_config(cfg)
+    assert [float(trooms.density(hp, e)) for e in (0, 1, 2, 5)] == [0.0, 0.5, 1.0, 1.0]
+    traces = []
+    chunk = tr.compiled_chunk(on_trace=lambda: traces.append(1))
+    st = tr.init_seeds(jnp.arange(1), hp)
+    placed = []
+    for ep in range(3):
+        st, _ = chunk(st, hp, jnp.int32(ep))
+        placed.append(int((np.asarray(st.world.circles)[..., 2] > 0).sum()))
+    assert placed[0] == 0 and placed[2] > placed[0], placed
+    hp2 = {**hp, "env.room_density_start": jnp.float32(0.5)}
+    chunk(tr.init_seeds(jnp.arange(1), hp2), hp2, jnp.int32(0))
+    assert len(traces) == 1
+    args = ["train", "--set", "env.room_curriculum_episodes=10", "--episodes", "2", "--quiet"]
+    assert main(args) == 2
+    assert "env.room_curriculum_episodes" in capsys.readouterr().err

@@ -72,6 +72,20 @@ class EnvConfig:
         "cylinders, boxes, walls, mixture, or fixed = keep that robot's env.worlds room (static)",
     )
     room_every: int = _f(1, lo=1, hi=1_000_000, traced=True, doc="episodes between new procedural rooms")
+    room_density_start: float = _f(
+        1.0,
+        lo=0.0,
+        hi=1.0,
+        traced=True,
+        doc="curriculum: the procedural rooms' obstacle density at episode 0 (1 = full rooms)",
+    )
+    room_curriculum_episodes: int = _f(
+        0,
+        lo=0,
+        hi=1_000_000,
+        traced=True,
+        doc="curriculum: episodes over which the density rises linearly to 1 (0 = no curriculum)",
+    )
     room_spec: str = _f(
         "",
         doc="RoomSpec overrides of the procedural rooms, e.g. 'cylinders_max=4, goals_max=2' "

@@ -141,6 +141,10 @@ def _check_rooms(cfg: Config, src: str) -> None:
     """env.room_families against the families and the robot count (RoomSpec overrides are checked
     by the trainer, which imports the generator)."""
     fams, n = cfg.env.room_families, cfg.num_robots
+    e = cfg.env
+    if e.rooms != "procedural" and (e.room_curriculum_episodes or e.room_density_start != 1.0):
+        field = "room_curriculum_episodes" if e.room_curriculum_episodes else "room_density_start"
+        raise ConfigError(f"{src}: env.{field} thins procedural rooms; it needs env.rooms = procedural")
     bad = [f for f in fams if f not in ROOM_FAMILIES]
     if bad:
         raise ConfigError(f"{src}: env.room_families: {bad[0]!r} is not one of {', '.join(ROOM_FAMILIES)}")

@@ -7,6 +7,8 @@ procedural rooms drawn inside the compiled program, and random start/goal placem
                                "fixed" keeps that robot's `env.worlds` playground (mixed fleets)
     env.placement = "random"   at every episode's reset, a random start pose and goal are drawn
                                in the free space of each robot's room (clearance > D_c + 0.05 m)
+    env.room_density_start,    a curriculum, sparse to dense: the rooms drawn at episode ep keep
+    env.room_curriculum_episodes   `density(hp, ep)` of their obstacles (traced; default none)
 
 State: a procedural run's `TrainState` holds the robots' current rooms (`world`: World [robots],
 every robot padded to one shape that fits every family's rooms and every fixed playground) and
@@ -85,13 +87,14 @@ class TrainRooms:
         """A seed's room stream u32[] (from its init key, without consuming it)."""
         return jax.random.bits(jax.random.fold_in(key, ROOM_STREAM), (), jnp.uint32)
 
-    def draw(self, stream: jax.Array, block: jax.Array) -> World:
-        """The robots' rooms of block `block` (World [robots]); pure JAX, jit/vmap-able."""
+    def draw(self, stream: jax.Array, block: jax.Array, density=1.0) -> World:
+        """The robots' rooms of block `block` (World [robots]), thinned to `density` (see
+        `density`); pure JAX, jit/vmap-able."""
         world = self.world
         base = stream + jnp.asarray(block, jnp.uint32) * jnp.uint32(self.num_robots)
         for spec, idx in self.groups:
             keys = jax.vmap(train_room_key)(base + jnp.asarray(idx, jnp.uint32))
-            rooms = jax.vmap(lambda k, spec=spec: generate(k, spec))(keys)
+            rooms = jax.vmap(lambda k, spec=spec: generate(k, spec, density))(keys)
             world = jax.tree.map(lambda a, b, idx=idx: a.at[idx].set(b.astype(a.dtype)), world, rooms)
         return world
 
@@ -101,13 +104,25 @@ class TrainRooms:
         if self.procedural:
             every = hp["env.room_every"]
             world = jax.lax.cond(
-                ep % every == 0, lambda: self.draw(state.room_stream, ep // every), lambda: state.world
+                ep % every == 0,
+                lambda: self.draw(state.room_stream, ep // every, density(hp, ep)),
+                lambda: state.world,
             )
             state = state.replace(world=world)
         if self.random_placement:
             keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_robots)
             world = jax.vmap(place)(world, keys)
         return state, world
+
+
+def density(hp, ep) -> jax.Array:
+    """The curriculum's obstacle density at episode `ep`: env.room_density_start rising linearly
+    to 1 over env.room_curriculum_episodes episodes; 1 without a curriculum (0 episodes). Both
+    are traced: a sweep over them compiles once."""
+    n = hp["env.room_curriculum_episodes"]
+    start = jnp.asarray(hp["env.room_density_start"], jnp.float32)
+    ramp = start + (1.0 - start) * jnp.minimum(jnp.asarray(ep, jnp.float32) / jnp.maximum(n, 1), 1.0)
+    return jnp.where(n > 0, ramp, jnp.float32(1.0))
 
 
 def place(world: World, key: jax.Array) -> World:

@@ -45,6 +45,7 @@ from fedjax_nav.federated import attacks
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
+from fedjax_nav.training.rooms import density as room_density
 from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite  # noqa: F401
 
 ENV_PREFIX = "env."
@@ -153,7 +154,7 @@ class Trainer:
         rooms = {}
         if self.rooms.procedural:
             stream = self.rooms.stream(key)
-            rooms = {"room_stream": stream, "world": self.rooms.draw(stream, 0)}
+            rooms = {"room_stream": stream, "world": self.rooms.draw(stream, 0, room_density(hp, 0))}
         params = env_params(rooms["world"], hp, self.method.random_starts) if rooms else self.env_params(hp)
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), params)
         return TrainState(

@@ -161,15 +161,20 @@ def _partition(rng: Uniforms, W, H, n_walls, spec: RoomSpec, c: float, K: int):
     return rooms, active, wall_segs, door_pt, door_n, placed
 
 
-def generate_with_info(key: jax.Array, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
+def generate_with_info(key: jax.Array, spec: RoomSpec, density=1.0) -> tuple[World, dict[str, jax.Array]]:
     """`generate`, plus what was drawn: counts requested and placed (walls, boxes, cylinders),
     whether the start-goal distance rule held, the sub-rooms and the reserved network."""
     check_spec(spec)
     rng = Uniforms(jax.random.uniform(key, (_num_uniforms(spec),)))
-    return _build(rng, spec)
+    return _build(rng, spec, density)
 
 
-def _build(rng: Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
+def _thin(n: jax.Array, density) -> jax.Array:
+    """floor(density * n), density in [0, 1] (traced): exactly n at density 1."""
+    return jnp.clip(jnp.floor(jnp.asarray(density, jnp.float32) * n), 0, n).astype(jnp.int32)
+
+
+def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str, jax.Array]]:
     c = spec.clearance
     n_cyl_slots, n_box_slots, K = _counts(spec)
     S, G = spec.starts_max, spec.goals_max
@@ -182,6 +187,9 @@ def _build(rng: Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
     n_walls_req = rng.randint(spec.walls_min, spec.walls_max) if K else jnp.int32(0)
     n_cyl_req = rng.randint(spec.cylinders_min, spec.cylinders_max) if n_cyl_slots else jnp.int32(0)
     n_box_req = rng.randint(spec.boxes_min, spec.boxes_max) if n_box_slots else jnp.int32(0)
+    # a curriculum's density keeps floor(density * n) of each requested count; the uniforms drawn
+    # are those of density 1, so thinning changes only how many of the drawn obstacles are kept
+    n_walls_req, n_cyl_req, n_box_req = (_thin(n, density) for n in (n_walls_req, n_cyl_req, n_box_req))
 
     # 1. Sub-rooms (one, the whole room, without walls).
     if K:
@@ -313,15 +321,20 @@ def _build(rng: Uniforms, spec: RoomSpec) -> tuple[World, dict[str, jax.Array]]:
     return world, info
 
 
-def generate(key: jax.Array, spec: RoomSpec) -> World:
+def generate(key: jax.Array, spec: RoomSpec, density=1.0) -> World:
     """One procedural room for `key` (pure JAX: jit and vmap over keys; `spec` is static).
+
+    `density` (a float in [0, 1], may be traced) keeps floor(density * n) of the n walls, boxes
+    and cylinders the room would have, from the same draws (a curriculum's sparse rooms;
+    docs/generalization.md); the construction's guarantee holds at any density. At 1 (the
+    default) the room is exactly the unthinned one.
 
     Every World of one spec has the shapes `padded_shape(spec)`: segments rows are the 4 outer
     walls, then 2 per interior wall slot, then 4 per box slot, then padding (zero rows); circles
     one row per cylinder slot (zero rows unused). Every start reaches every goal with clearance
     > D_c (see the module docstring for why). Raises WorldError for a bad spec (at trace time).
     """
-    return generate_with_info(key, spec)[0]
+    return generate_with_info(key, spec, density)[0]
 
 
 @functools.partial(jax.jit, static_argnums=1)
