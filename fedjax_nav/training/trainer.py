@@ -45,7 +45,7 @@ from fedjax_nav.federated import attacks
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
-from fedjax_nav.training.rooms import density as room_density
+from fedjax_nav.training.rooms import density as room_density  # the curriculum's, not an env field
 from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite  # noqa: F401
 
 ENV_PREFIX = "env."
