@@ -132,3 +132,4 @@ def test_the_analysis_notebook_runs_on_the_report(report):
             os.environ["FEDJAX_NAV_RESULTS"] = old
     printed = "".join(o.get("text", "") for c in nb.cells for o in c.get("outputs", []))
     assert "report" in printed and "fig20_eval_improvements.png" in printed
+    assert "redrew 13 experiment tables" in printed  # results/: every experiment file of chapter 4

@@ -118,3 +118,15 @@ def eval_figure(
     axes[0].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
+
+
+def settings_figure(by_setting: str | Path, path: str | Path) -> Path:
+    """The bars of one experiment's committed table (`results/reproduction_<experiment>.csv`: one
+    row per setting, success over the last 25 episodes, mean and std over seed runs, and the
+    thesis's number where it printed one): the figure a fresh clone can redraw without runs/."""
+    t = pd.read_csv(by_setting)
+    name = Path(by_setting).stem.removeprefix("reproduction_")
+    thesis = t["thesis_success"].tolist() if "thesis_success" in t else None
+    labels = [f"{t['by'].iloc[0].split('.')[-1]}={v}" for v in t["setting"]]
+    title = f"{name}: success, last 25 episodes ({int(t['runs'].min())}-{int(t['runs'].max())} runs per setting)"
+    return bars_figure(labels, t["success"], t["success_std"], path, "success, last 25 episodes", title, thesis)
