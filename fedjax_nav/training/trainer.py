@@ -41,7 +41,8 @@ from fedjax_nav.config import Config
 from fedjax_nav.env import NavEnv, make_params
 from fedjax_nav.env.nav import EnvParams, EnvState
 from fedjax_nav.federated import aggregators as agg
-from fedjax_nav.federated import attacks
+from fedjax_nav.training import federation
+from fedjax_nav.training.federation import FED_STREAM  # noqa: F401  (re-exported)
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
@@ -50,9 +51,6 @@ from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetr
 
 ENV_PREFIX = "env."
 ENV_PREFIXES = (ENV_PREFIX, "robot.")  # traced env.* and robot.* values that are EnvParams fields
-# fold_in tag of the federated round's draws (participation, attack noise): derived from the
-# state's key without consuming it, so the run's key stream is the same with and without them.
-FED_STREAM = 0x0FED
 
 
 def env_params(world: worlds.World, hp: HParams, random_starts: bool) -> EnvParams:
@@ -216,49 +214,12 @@ class Trainer:
         return self.federated_round(state, hp)[0]
 
     def participation(self, key: jax.Array, hp: HParams) -> jax.Array:
-        """bool[robots]: who takes part in this round, each with probability fed.participation
-        (uniform [0, 1) < p: every client when p = 1)."""
-        return (jax.random.uniform(key, (self.num_robots,)) < hp["fed.participation"]) & jnp.asarray(self.real)
+        """bool[robots]: who takes part in a round (`training.federation.participation`)."""
+        return federation.participation(self, key, hp)
 
     def federated_round(self, state: TrainState, hp: HParams) -> tuple[TrainState, dict]:
-        """One round: the participants send `shared(agents)` (Byzantine ones the attack's
-        parameters, and for PW/RW an inflated reward); the aggregator's update comes back to the
-        honest participants. Absent clients and Byzantine ones keep their own models. A round
-        with fewer than max(fed.min_clients, 1) participants is skipped: nothing is sent, the
-        aggregator's state is unchanged. Returns the state and {"clients": i32 (clients that
-        exchanged), "skipped": i32 (1 if skipped)}. With participation 1, min_clients <= robots
-        and no attack this is exactly the thesis's round (every draw comes from
-        fold_in(key, FED_STREAM): the run's key stream is untouched)."""
-        f = self.cfg.fed
-        r = state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
-        own = self.shared(state.agents)
-        k_part, k_attack = jax.random.split(jax.random.fold_in(state.key, FED_STREAM))
-        mask = self.participation(k_part, hp)
-        n = jnp.sum(mask.astype(jnp.int32))
-        held = n >= jnp.maximum(hp["fed.min_clients"], 1)
-        sent, r_sent = own, r
-        if f.attack != "none" and f.byzantine > 0:
-            byz = jnp.asarray(self.byzantine)
-            sent = attacks.apply_attack(
-                f.attack, own, byz, k_attack, hp["fed.attack_scale"], agg.reference(state.agg_state)
-            )
-            if self.method.sends_rewards:
-                r_sent = attacks.inflate_reward(r, byz)
-        new, agg_state = self.aggregator.update(sent, r_sent, state.agg_state, hp, mask)
-        take = held & jnp.asarray(~self.byzantine)  # absent rows of `new` are already `sent` = own
-        new = (
-            agg.keep_absent(new, own, take)
-            if f.byzantine
-            else jax.tree.map(lambda a, b: jnp.where(held, a, b), new, own)
-        )
-        agg_state = jax.tree.map(lambda a, b: jnp.where(held, a, b), agg_state, state.agg_state)
-        stats = {"clients": jnp.where(held, n, 0), "skipped": (~held).astype(jnp.int32)}
-        return state.replace(
-            agents=state.agents.replace(**new),
-            agg_state=agg_state,
-            reward_sum=jnp.zeros_like(state.reward_sum),
-            reward_steps=jnp.float32(0),
-        ), stats
+        """One federated round: the state and its stats (`training.federation.federated_round`)."""
+        return federation.federated_round(self, state, hp)
 
     def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
         """One env step of every robot, with the periodic updates. g: global step (unbatched).
