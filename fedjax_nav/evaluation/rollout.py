@@ -320,6 +320,13 @@ class RunAgents:
         return len(self.agent_seed)
 
     @property
+    def env_values(self) -> dict:
+        """The run's env constants an evaluation drives with (EnvParams keywords)."""
+        e = self.cfg.env
+        keys = ("dt", "v_max", "omega_max", "goal_radius", "collision_distance")
+        return {k: getattr(e, k) for k in keys}
+
+    @property
     def agent_byzantine(self) -> np.ndarray:
         """bool[A]: the agents of the run's Byzantine robots (`fed.byzantine`: the last robots of
         each seed, as in training; docs/robustness.md). All False without them, or when the

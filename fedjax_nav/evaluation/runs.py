@@ -163,11 +163,7 @@ def evaluate_run(
         num_beams=e.num_beams,
         max_range=e.max_range,
         collision_test=e.collision_test,
-        dt=e.dt,
-        v_max=e.v_max,
-        omega_max=e.omega_max,
-        goal_radius=e.goal_radius,
-        collision_distance=e.collision_distance,
+        **run.env_values,
         robot=robot_kw,
         **robot_values,
     )

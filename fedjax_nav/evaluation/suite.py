@@ -80,16 +80,7 @@ def evaluate_suite(
     R, G = world.goals.shape[:2]
     A, K = run.num_agents, int(attempts) * run.num_robots // run.n_nets
     T = int(max_steps or e.episode_length)
-    params = make_params(
-        world,
-        range_noise=range_noise,
-        action_noise=action_noise,
-        dt=e.dt,
-        v_max=e.v_max,
-        omega_max=e.omega_max,
-        goal_radius=e.goal_radius,
-        collision_distance=e.collision_distance,
-    )
+    params = make_params(world, range_noise=range_noise, action_noise=action_noise, **run.env_values)
     program = _program(
         (e.num_beams, e.max_range, T, e.collision_test), actor_policy(d.hidden, d.depth, d.activation), min(CHUNK, T)
     )
