@@ -1,0 +1,71 @@
+"""The robustness experiment's report (docs/robustness.md): evaluate the finished points of a
+robustness sweep on the thesis arena (kept in each point's eval/eval/ and reused), then write
+the table, the per-seed table, the acceptance verdict and the figures.
+
+    report(load_sweep("configs/sweeps/robustness.yaml"), "runs/sweeps/robustness")
+
+Report folder (the sweep's --out): robustness.csv, robustness_per_seed.csv, robustness_verdict.csv,
+robustness.md, robustness_learning.png, robustness_eval.png. Points not trained yet are left out
+(the tables say how many seeds each point has).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+from typing import Callable
+
+from fedjax_nav.analysis import robustness as rb
+from fedjax_nav.experiments.reproduce import evaluate_points
+from fedjax_nav.experiments.thesis_report import _md_table
+from fedjax_nav.rundir import atomic_write
+from fedjax_nav.training.sweep import Sweep
+
+TABLES = ("robustness.csv", "robustness_per_seed.csv", "robustness_verdict.csv")
+FIGURES = ("robustness_learning.png", "robustness_eval.png")
+
+
+def markdown(t, v) -> str:
+    cols = ["setting", "seeds", "success_honest", "success_honest_std", "success_all", "eval_honest"]
+    cols += ["eval_honest_std", "eval_all", "bytes_sent_per_seed", "skipped_rounds"]
+    lines = ["# Robustness (docs/robustness.md)", "", "## Acceptance checks on what has been run", ""]
+    lines += [_md_table(v) if len(v) else "(nothing to check yet)", "", "## Every point", ""]
+    lines += [_md_table(t[cols].round(3)) if len(t) else "(no finished point)", ""]
+    return "\n".join(lines)
+
+
+def report(
+    sweep: Sweep,
+    out: str | Path,
+    attempts: int = 4,
+    evaluate: bool = True,
+    copy_tables: str | Path | None = None,
+    copy_figures: str | Path | None = None,
+    echo: Callable[[str], None] = print,
+) -> dict:
+    """Evaluate (unless `evaluate` is False), then write the report into `out`; copy the small
+    tables and the figures where asked (results/, docs/img/robustness/). Returns the paths."""
+    out = Path(out)
+    points = out / "points"
+    if evaluate:
+        evaluate_points([dataclasses.replace(sweep, evaluate=True)], points, attempts, echo)
+    t, ps = rb.table(sweep, points), rb.per_seed(sweep, points)
+    v = rb.verdict(t) if len(t) else t
+    for name, df in zip(TABLES, (t, ps, v)):
+        atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
+    atomic_write(out / "robustness.md", lambda p: Path(p).write_text(markdown(t, v)))
+    figs = []
+    if len(t):
+        learn = "learning success of honest robots, last 25 episodes"
+        figs.append(rb.figure(t, out / FIGURES[0], "success_honest", learn))
+        if t.eval_honest.notna().any():
+            arena = "evaluation success of honest agents, thesis arena"
+            figs.append(rb.figure(t, out / FIGURES[1], "eval_honest", arena))
+    copied = []
+    for dest, names in ((copy_tables, TABLES), (copy_figures, [f.name for f in figs])):
+        if dest is not None:
+            Path(dest).mkdir(parents=True, exist_ok=True)
+            copied += [shutil.copyfile(out / n, Path(dest) / n) for n in names]
+    echo(f"robustness report: {len(t)} point(s) in {out}/robustness.md; {len(figs)} figure(s)")
+    return {"points": len(t), "tables": [out / n for n in TABLES], "figures": figs, "copied": copied}
