@@ -59,6 +59,14 @@ def test_the_table_reads_each_points_summary_and_evaluation(sweep, tmp_path):
     for p, s in ((clean, _summary([0.9, 0.8])), (noisy, _summary([0.85, 0.75], [0.7, 0.6]))):
         (tmp_path / "points" / p.id).mkdir(parents=True)
         (tmp_path / "points" / p.id / "summary.json").write_text(json.dumps(s))
+    # the clean run's robots but the last: robot 4 never succeeds, robots 0-3 in 3 of 4 episodes
+    # of seed 0 and in every episode of seed 1 (last 25 of 30 episodes)
+    rows = [
+        (e, seed, r, int(r < 4 and (seed == 1 or e % 4 != 0))) for e in range(30) for seed in range(2) for r in range(5)
+    ]
+    pd.DataFrame(rows, columns=["episode", "seed", "robot", "reached_goal"]).to_csv(
+        tmp_path / "points" / clean.id / "metrics.csv", index=False
+    )
     ev = tmp_path / "points" / noisy.id / "eval" / "eval"
     ev.mkdir(parents=True)
     (ev / "eval.json").write_text(json.dumps(_eval_json([0.5, 0.7], [0.4, 0.6])))
@@ -71,6 +79,10 @@ def test_the_table_reads_each_points_summary_and_evaluation(sweep, tmp_path):
     assert r.loc["median, noise x1", "eval_honest"] == pytest.approx(0.6)
     assert r.loc["median, noise x1", "eval_all"] == pytest.approx(0.5)
     assert np.isnan(r.loc["FedAvg, clean", "eval_honest"])  # not evaluated
+    last = [e for e in range(5, 30)]
+    want = (np.mean([e % 4 != 0 for e in last]) + 1.0) / 2
+    assert r.loc["FedAvg, clean", "success_but_last"] == pytest.approx(want)
+    assert np.isnan(r.loc["median, noise x1", "success_but_last"])
     ps = pd.read_csv(tmp_path / "robustness_per_seed.csv")
     assert ps[ps.setting == "median, noise x1"].eval_honest.tolist() == [0.5, 0.7]
     assert [p.name for p in out["figures"]] == ["robustness_learning.png", "robustness_eval.png"]
@@ -90,6 +102,7 @@ def _row(setting_, aggregator, attack, byz, participation, robots, honest):
         participation=participation,
         robots=robots,
         success_honest=honest,
+        success_but_last=honest - 0.05 if not byz else np.nan,
     )
 
 
@@ -113,6 +126,7 @@ def test_the_verdict_applies_the_issues_rules():
     assert v.loc["1 of 5 Byzantine, noise", "passes"] and v.loc["1 of 5 Byzantine, noise", "best"] == "median"
     assert v.loc["1 of 5 Byzantine, noise", "fedavg"] == 0.0
     assert v.loc["1 of 5 Byzantine, noise", "aggregators_run"] == 2
+    assert v.loc["1 of 5 Byzantine, noise", "clean_same_robots"] == pytest.approx(0.85)
     assert not v.loc["1 of 5 Byzantine, scale", "passes"]
 
 

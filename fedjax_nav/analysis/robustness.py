@@ -32,6 +32,7 @@ AGGREGATOR_NAMES = {
     "norm_bounded": "norm-bounded",
 }
 WITHIN = 0.10  # the issue's tolerance: within 10% of the clean run (relative)
+LAST = 25  # episodes: learning success is taken over the last 25 (summary.json's success_last)
 
 
 def _eval(folder: Path) -> dict | None:
@@ -55,6 +56,17 @@ def setting(cfg) -> str:
     if len(cfg.env.worlds) != 5:
         parts.append(f"{len(cfg.env.worlds)} robots")
     return ", ".join(parts)
+
+
+def _success_but_last(folder: Path, last: int = LAST) -> float:
+    """Success over the last `last` episodes of every robot but the last one (mean over seeds):
+    in a clean run, what the robots that are honest when the last client is Byzantine reached."""
+    f = folder / "metrics.csv"
+    if not f.exists():
+        return np.nan
+    df = pd.read_csv(f, usecols=["episode", "seed", "robot", "reached_goal"])
+    df = df[(df.episode >= df.episode.max() + 1 - last) & (df.robot < df.robot.max())]
+    return float(df.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean().mean())
 
 
 def table(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
@@ -84,6 +96,8 @@ def table(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
             "eval_honest_std": np.nan,
             "eval_all": np.nan,
             "eval_all_std": np.nan,
+            # clean runs: the robots that are honest when the last client is Byzantine (like for like)
+            "success_but_last": _success_but_last(points_dir / p.id) if not cfg.fed.byzantine else np.nan,
             "bytes_sent_per_seed": s.get("fed_bytes_sent", np.nan),
             "skipped_rounds": s.get("fed_skipped_rounds", np.nan),
             "diverged_seeds": len(s.get("diverged_seeds", [])),
@@ -132,7 +146,9 @@ def _one(t: pd.DataFrame, **match) -> pd.Series | None:
 def verdict(t: pd.DataFrame) -> pd.DataFrame:
     """The issue's acceptance checks on what has been run, one row per check: 30% dropout within
     10% of full participation; for each attack with 1 Byzantine client, the best robust aggregator
-    within 10% of clean FedAvg and at least the honest fleet alone, with FedAvg beside it."""
+    within 10% of clean FedAvg and at least the honest fleet alone, with FedAvg beside it.
+    `reference` is the clean run's headline (all robots, the issue's reading); `clean_same_robots`
+    the clean run's success over the robots that are honest under attack, shown for context."""
     fl = t[t.method == "flddpg"]
     full = _one(fl, aggregator="method", attack="clean", participation=1.0, robots=5)
     drop = _one(fl, aggregator="method", attack="clean", participation=0.7, robots=5)
@@ -166,13 +182,15 @@ def verdict(t: pd.DataFrame) -> pd.DataFrame:
                 "value": best.success_honest,
                 "reference": full.success_honest,
                 "ratio": best.success_honest / full.success_honest,
+                "clean_same_robots": full.success_but_last,
                 "honest_fleet": fleet.success_honest if fleet is not None else np.nan,
                 "fedavg": fedavg.success_honest if fedavg is not None else np.nan,
                 "aggregators_run": len(robust),
                 "passes": bool(ok),
             }
         )
-    cols = ["check", "best", "value", "reference", "ratio", "honest_fleet", "fedavg", "aggregators_run", "passes"]
+    cols = ["check", "best", "value", "reference", "ratio", "clean_same_robots", "honest_fleet", "fedavg"]
+    cols += ["aggregators_run", "passes"]
     return pd.DataFrame(rows, columns=cols)
 
 
