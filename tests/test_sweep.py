@@ -65,8 +65,11 @@ def test_every_shipped_sweep_loads(path):
     assert s.points and s.seeds >= 1 and s.description
     ids = [p.id for p in s.points]
     assert len(set(ids)) == len(ids), "two grid points resolve to the same config"
+    labels = [p.label for p in s.points]
+    assert len(set(labels)) == len(labels), "two grid points share a label (tables and curves group by it)"
     for p in s.points:
-        assert p.cfg.run.seeds == s.seeds and p.cfg.run.episodes == 125 and p.cfg.env.episode_length == 1024
+        episodes = p.values.get("run.episodes", 125)  # the thesis's budget unless swept
+        assert p.cfg.run.seeds == s.seeds and p.cfg.run.episodes == episodes and p.cfg.env.episode_length == 1024
         for k, v in p.values.items():
             if k != "base":
                 section, name = k.split(".")

@@ -120,9 +120,16 @@ def group_key(cfg: Config) -> str:
 
 
 def point_label(values: dict, cfg: Config) -> str:
+    """'key=value, ...' of the swept values; a base config is named by its method when the file is
+    the method's preset (thesis/iddpg.yaml -> method=iddpg), else by its file name, so that two
+    presets of one method (generalization/iddpg-thesis.yaml, iddpg-procedural.yaml) stay apart."""
     parts = []
     for k, v in values.items():
-        parts.append(f"method={cfg.method}" if k == "base" else f"{k}={v}")
+        if k == "base":
+            stem = Path(str(v)).stem
+            parts.append(f"method={cfg.method}" if stem == cfg.method else f"config={stem}")
+        else:
+            parts.append(f"{k}={v}")
     return ", ".join(parts) or cfg.method
 
 

@@ -1,0 +1,153 @@
+"""The generalization experiment's tables, goal check and figure (docs/generalization.md), from
+the finished points of a sweep such as configs/sweeps/generalization.yaml: training success from
+each point's summary.json, the thesis arena from eval/eval/eval.json and the held-out suite from
+eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or evaluates;
+`fedjax_nav.experiments.generalization` does.
+
+    table(sweep, points_dir, suite)     one row per finished point
+    per_seed(sweep, points_dir, suite)  one row per point and training seed
+    goal(table, families)               the issue's goal per procedurally trained point
+    figure(table, families, path)       success per family and in the arena, with seed CIs
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from fedjax_nav import rundir
+from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.training.sweep import Sweep
+
+ARENA = "eval"  # the thesis's evaluation world
+GOAL_ARENA, GOAL_FAMILY = 0.90, 0.85  # the issue's goal: arena and every held-out family
+
+
+def rooms(cfg) -> str:
+    """Where a point trained: 'thesis rooms', 'procedural (mixture)', 'heterogeneous (...)'."""
+    if cfg.env.rooms != "procedural":
+        return "thesis rooms"
+    fams = tuple(cfg.env.room_families)
+    if len(set(fams)) == 1:
+        return f"procedural ({fams[0]})"
+    return "heterogeneous (" + ", ".join(fams) + ")"
+
+
+def _suite_families(folder: Path) -> pd.DataFrame | None:
+    f = folder / "suite_families.csv"
+    return pd.read_csv(f) if (folder / "suite.json").exists() and f.exists() else None
+
+
+def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
+    """One row per finished point: training success (last 25 episodes, mean and std over seeds),
+    arena success (all agents; std over seeds), and per held-out family the success with the 95%
+    bootstrap interval over training seeds (`ci_seeds_*`) and over rooms (`ci_rooms_*`)."""
+    rows = []
+    for p, s in finished(sweep, Path(points_dir)):
+        d = Path(points_dir) / p.id
+        row = {
+            "point": p.id,
+            "method": p.cfg.method,
+            "rooms": rooms(p.cfg),
+            "episodes": p.cfg.run.episodes,
+            "seeds": s["seeds"],
+            "train_success": s["success_last"],
+            "train_success_std": s["success_last_std"],
+            "arena": np.nan,
+            "arena_seed_std": np.nan,
+        }
+        ev = rundir.eval_dir(d, ARENA) / "eval.json"
+        if ev.exists():
+            a = json.loads(ev.read_text())["all_agents"]["overall"]
+            row.update(arena=a["success_rate"], arena_seed_std=a["success_seed_std"])
+        fam = _suite_families(rundir.eval_dir(d, suite))
+        if fam is not None:
+            for _, f in fam.iterrows():
+                for col in ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "ci_rooms_high"):
+                    row[f"{f.family}_{col}" if col != "success" else f.family] = f[col]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
+    """One row per point and training seed: training success, arena success and each family's
+    success of that seed's agents (the numbers the seed intervals are taken over)."""
+    rows = []
+    for p, s in finished(sweep, Path(points_dir)):
+        d = Path(points_dir) / p.id
+        arena, fams = {}, None
+        ev = rundir.eval_dir(d, ARENA) / "eval.json"
+        if ev.exists():
+            arena = json.loads(ev.read_text())["all_agents"]["success_per_seed"]
+        eps = rundir.eval_dir(d, suite) / "suite_episodes.csv"
+        if eps.exists():
+            fams = pd.read_csv(eps).groupby(["seed", "family"])["success"].mean().unstack()
+        for seed, train in enumerate(s["success_last_per_seed"]):
+            row = {"point": p.id, "method": p.cfg.method, "rooms": rooms(p.cfg), "episodes": p.cfg.run.episodes}
+            row.update(seed=seed, train_success=train, arena=arena.get(str(seed), np.nan))
+            if fams is not None and seed in fams.index:
+                row.update(fams.loc[seed].to_dict())
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def goal(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
+    """Per procedurally trained point (the issue's goal is for those): arena >= 0.90 and every
+    held-out family >= 0.85 (means over seeds, all agents), the worst family, and whether it holds."""
+    rows = []
+    for _, r in t[t.rooms != "thesis rooms"].iterrows():
+        fam = {f: r.get(f, np.nan) for f in families}
+        worst = min(fam, key=lambda f: fam[f] if np.isfinite(fam[f]) else -1.0) if fam else ""
+        ok = np.isfinite(r.arena) and r.arena >= GOAL_ARENA
+        ok = ok and all(np.isfinite(v) and v >= GOAL_FAMILY for v in fam.values())
+        rows.append(
+            {
+                "method": r.method,
+                "rooms": r.rooms,
+                "episodes": r.episodes,
+                "seeds": r.seeds,
+                "arena": r.arena,
+                "worst_family": worst,
+                "worst_family_success": fam.get(worst, np.nan),
+                "goal_reached": bool(ok),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int | None = None) -> Path:
+    """Grouped bars: for each held-out family and the arena, one bar per trained point (method x
+    rooms; the points of `episodes` only, when given), height the mean over seeds, whiskers the
+    95% bootstrap interval over training seeds (families) or +- the seed std (arena); the goal as
+    dashed lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = t if episodes is None else t[t.episodes == episodes]
+    groups = [*families, "arena"]
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(groups) + 0.3 * len(t)), 4.4))
+    width = 0.8 / max(len(t), 1)
+    for i, (_, r) in enumerate(t.iterrows()):
+        x = np.arange(len(groups)) + (i - (len(t) - 1) / 2) * width
+        y = np.array([r.get(f, np.nan) for f in families] + [r.arena], float)
+        lo = np.array([r.get(f"{f}_ci_seeds_low", np.nan) for f in families] + [r.arena - r.arena_seed_std], float)
+        hi = np.array([r.get(f"{f}_ci_seeds_high", np.nan) for f in families] + [r.arena + r.arena_seed_std], float)
+        err = np.nan_to_num(np.stack([y - lo, hi - y]).clip(min=0))
+        label = f"{r.method.upper()}, {r['rooms']}" + ("" if episodes is not None else f", {r.episodes} ep.")
+        ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label)
+    ax.axhline(GOAL_FAMILY, ls="--", c="gray", lw=0.8)
+    ax.axhline(GOAL_ARENA, ls=":", c="gray", lw=0.8)
+    ax.set_xticks(range(len(groups)), groups)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("success (all agents)")
+    ax.set_title("held-out families and the thesis arena" + (f", {episodes} training episodes" if episodes else ""))
+    ax.legend(fontsize=7, ncol=2, loc="upper right")
+    fig.tight_layout()
+    out = rundir.save_figure(fig, path)
+    plt.close(fig)
+    return out

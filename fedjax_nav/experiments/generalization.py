@@ -1,0 +1,93 @@
+"""The generalization experiment's report (docs/generalization.md): evaluate the finished points
+of a generalization sweep on the thesis arena (with trajectory figures) and on a held-out suite
+(kept in each point's eval/ folders and reused), then write the tables, the goal check and the
+figures.
+
+    report(load_sweep("configs/sweeps/generalization.yaml"), "runs/sweeps/generalization")
+
+Report folder (the sweep's --out): generalization.csv, generalization_per_seed.csv,
+generalization_goal.csv, generalization.md, generalization_<episodes>.png per training budget.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Callable
+
+from fedjax_nav import rundir
+from fedjax_nav.analysis import generalization as gz
+from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.experiments.thesis_report import _md_table
+from fedjax_nav.training.sweep import Sweep
+
+TABLES = ("generalization.csv", "generalization_per_seed.csv", "generalization_goal.csv")
+
+
+def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
+    """The arena (protocol of docs/evaluation.md, figures drawn) and the suite, unless already
+    evaluated with the same attempts."""
+    from fedjax_nav.evaluation import evaluate_run, read_evaluation, write_run
+    from fedjax_nav.evaluation.suite import evaluate_suite, write_suite
+
+    ev = read_evaluation(rundir.eval_dir(folder, gz.ARENA))
+    if ev is None or ev.get("attempts_requested") != arena_attempts:
+        write_run(evaluate_run(folder, gz.ARENA, attempts=arena_attempts), figures=True)
+        echo(f"evaluated {folder.name} on the arena")
+    done = rundir.eval_dir(folder, suite) / "suite.json"
+    if not done.exists() or json.loads(done.read_text()).get("attempts_per_agent") != suite_attempts:
+        write_suite(evaluate_suite(folder, suite, attempts=suite_attempts), rundir.eval_dir(folder, suite))
+        echo(f"evaluated {folder.name} on suite {suite}")
+
+
+def families_of(t) -> list[str]:
+    """The held-out families present in the table (its per-family columns), 'all' excluded."""
+    return [c[: -len("_ci_seeds_low")] for c in t.columns if c.endswith("_ci_seeds_low") and not c.startswith("all_")]
+
+
+def report(
+    sweep: Sweep,
+    out: str | Path,
+    suite: str = "heldout",
+    suite_attempts: int = 1,
+    arena_attempts: int = 4,
+    evaluate: bool = True,
+    copy_tables: str | Path | None = None,
+    copy_figures: str | Path | None = None,
+    echo: Callable[[str], None] = print,
+) -> dict:
+    """Evaluate (unless `evaluate` is False), then write the report into `out`; copy the small
+    tables and the figures (with the FLDDPG points' arena trajectories) where asked."""
+    out = Path(out)
+    points = out / "points"
+    if evaluate:
+        for p, _ in finished(sweep, points):
+            if (points / p.id / rundir.PARAMS).exists():
+                evaluate_point(points / p.id, suite, suite_attempts, arena_attempts, echo)
+    t, ps = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite)
+    fams = families_of(t)
+    g = gz.goal(t, fams) if len(t) else t
+    for name, df in zip(TABLES, (t, ps, g)):
+        rundir.atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
+    cols = ["method", "rooms", "episodes", "seeds", "train_success", "train_success_std", "arena", *fams]
+    md = ["# Generalization (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
+    md += [_md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
+    md += [_md_table(t[[c for c in cols if c in t]].round(3)) if len(t) else "(no finished point)", ""]
+    rundir.atomic_write(out / "generalization.md", lambda p: Path(p).write_text("\n".join(md)))
+    figs = [gz.figure(t, fams, out / f"generalization_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
+    copied = []
+    if copy_tables is not None:
+        Path(copy_tables).mkdir(parents=True, exist_ok=True)
+        copied += [shutil.copyfile(out / n, Path(copy_tables) / n) for n in TABLES]
+    if copy_figures is not None:
+        dest = Path(copy_figures)
+        dest.mkdir(parents=True, exist_ok=True)
+        copied += [shutil.copyfile(f, dest / f.name) for f in figs]
+        for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
+            src = rundir.eval_dir(points / r.point, gz.ARENA) / "eval_trajectories.png"
+            if src.exists():
+                name = f"arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}.png"
+                copied.append(shutil.copyfile(src, dest / name))
+    echo(f"generalization report: {len(t)} point(s) in {out}/generalization.md; {len(figs)} figure(s)")
+    return {"points": len(t), "figures": figs, "copied": copied}

@@ -1,0 +1,35 @@
+"""The generalization experiment's report (docs/generalization.md): evaluate every finished point
+of the sweep on the thesis arena and the held-out suite, write the tables, the goal check and
+the figures into the sweep's folder, and copy the small tables to results/ and the figures to
+docs/img/generalization/.
+
+    fedjax-nav sweep generalization --out runs/sweeps/generalization      # train (resumable)
+    python scripts/generalization_report.py runs/sweeps/generalization    # report on what has finished
+"""
+
+import argparse
+
+from fedjax_nav.configs import SWEEP_DIR
+from fedjax_nav.experiments.generalization import report
+from fedjax_nav.training.sweep import load_sweep
+
+ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+ap.add_argument("out", help="the sweep's output folder (its points/ are read)")
+ap.add_argument("--sweep", default=str(SWEEP_DIR / "generalization.yaml"), help="the sweep file")
+ap.add_argument("--suite", default="heldout", help="held-out suite (default heldout: 50 rooms per family x 4 goals)")
+ap.add_argument("--suite-attempts", type=int, default=1, help="attempts per agent, room and goal (default 1)")
+ap.add_argument("--attempts", type=int, default=4, help="arena attempts per agent and goal (default 4)")
+ap.add_argument("--no-eval", action="store_true", help="tables from what is already evaluated")
+ap.add_argument("--results", default="results", help="copy the tables here ('' = no copy)")
+ap.add_argument("--figures", default="docs/img/generalization", help="copy the figures here ('' = no copy)")
+a = ap.parse_args()
+report(
+    load_sweep(a.sweep),
+    a.out,
+    suite=a.suite,
+    suite_attempts=a.suite_attempts,
+    arena_attempts=a.attempts,
+    evaluate=not a.no_eval,
+    copy_tables=a.results or None,
+    copy_figures=a.figures or None,
+)

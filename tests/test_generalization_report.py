@@ -1,0 +1,104 @@
+"""The generalization report (docs/generalization.md): the table reads each point's summary.json,
+arena eval.json and suite files; the goal check applies the issue's thresholds; the figures are
+drawn. Points are written by hand (no training, no evaluation): the report only reads files."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from fedjax_nav.analysis import generalization as gz
+from fedjax_nav.configs import SWEEP_DIR
+from fedjax_nav.experiments.generalization import report
+from fedjax_nav.training.sweep import load_sweep
+
+FAMILIES = ["cylinders", "boxes", "walls", "mixture"]
+
+
+@pytest.fixture(scope="module")
+def sweep():
+    return load_sweep(SWEEP_DIR / "generalization.yaml")
+
+
+def _point(sweep, stem, episodes=125):
+    for p in sweep.points:
+        if str(p.values["base"]).endswith(f"/{stem}.yaml") and p.cfg.run.episodes == episodes:
+            return p
+    raise KeyError(stem)
+
+
+def _write(folder, train, arena_per_seed, family_per_seed):
+    """A finished, evaluated point: 2 seeds; family_per_seed: family -> [seed 0, seed 1]."""
+    folder.mkdir(parents=True)
+    s = {"seeds": 2, "episodes_done": 125, "success_last": np.mean(train), "success_last_std": np.std(train)}
+    s["success_last_per_seed"] = train
+    (folder / "summary.json").write_text(json.dumps(s))
+    ev = folder / "eval" / "eval"
+    ev.mkdir(parents=True)
+    overall = {"success_rate": float(np.mean(arena_per_seed)), "success_seed_std": float(np.std(arena_per_seed))}
+    per = {str(i): v for i, v in enumerate(arena_per_seed)}
+    (ev / "eval.json").write_text(json.dumps({"all_agents": {"overall": overall, "success_per_seed": per}}))
+    suite = folder / "eval" / "heldout"
+    suite.mkdir(parents=True)
+    rows = [
+        {"family": f, "success": np.mean(v), "ci_seeds_low": min(v), "ci_seeds_high": max(v)}
+        for f, v in family_per_seed.items()
+    ]
+    rows.append({"family": "all", "success": np.mean([np.mean(v) for v in family_per_seed.values()])})
+    fam = pd.DataFrame(rows).assign(ci_rooms_low=0.0, ci_rooms_high=1.0)
+    fam.to_csv(suite / "suite_families.csv", index=False)
+    eps = [
+        {"family": f, "seed": seed, "success": int(k < round(10 * v[seed]))}
+        for f, v in family_per_seed.items()
+        for seed in range(2)
+        for k in range(10)
+    ]
+    pd.DataFrame(eps).to_csv(suite / "suite_episodes.csv", index=False)
+    (suite / "suite.json").write_text(json.dumps({"attempts_per_agent": 1}))
+
+
+def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
+    fixed, proc = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
+    _write(tmp_path / "points" / fixed.id, [0.9, 0.8], [0.5, 0.3], {f: [0.6, 0.4] for f in FAMILIES})
+    good = {"cylinders": [0.9, 1.0], "boxes": [0.9, 0.9], "walls": [0.8, 0.8], "mixture": [0.9, 0.8]}
+    _write(tmp_path / "points" / proc.id, [0.7, 0.7], [1.0, 0.9], good)
+    out = report(sweep, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    t = pd.read_csv(tmp_path / "generalization.csv").set_index("rooms")
+    assert list(t.index) == ["thesis rooms", "procedural (mixture)"]  # grid order of the file
+    assert t.loc["procedural (mixture)", "arena"] == pytest.approx(0.95)
+    assert t.loc["procedural (mixture)", "walls"] == pytest.approx(0.8)
+    assert t.loc["procedural (mixture)", "cylinders_ci_seeds_high"] == pytest.approx(1.0)
+    assert t.loc["thesis rooms", "train_success"] == pytest.approx(0.85)
+    g = pd.read_csv(tmp_path / "generalization_goal.csv")
+    assert len(g) == 1 and g.rooms[0] == "procedural (mixture)"  # the goal concerns procedural training
+    assert g.worst_family[0] == "walls" and not g.goal_reached[0]  # 0.80 < 0.85
+    ps = pd.read_csv(tmp_path / "generalization_per_seed.csv")
+    row = ps[(ps.rooms == "procedural (mixture)") & (ps.seed == 0)].iloc[0]
+    assert row.cylinders == pytest.approx(0.9) and row.arena == pytest.approx(1.0)
+    assert [p.name for p in out["figures"]] == ["generalization_125.png"]
+    assert (tmp_path / "res" / "generalization_goal.csv").exists()
+
+
+def test_the_goal_holds_only_when_every_family_and_the_arena_pass():
+    t = pd.DataFrame(
+        [
+            {"method": "flddpg", "rooms": "procedural (mixture)", "episodes": 125, "seeds": 4, "arena": 0.91}
+            | {f: 0.86 for f in FAMILIES},
+            {"method": "iddpg", "rooms": "procedural (mixture)", "episodes": 125, "seeds": 4, "arena": 0.89}
+            | {f: 0.99 for f in FAMILIES},
+            {"method": "flddpg", "rooms": "thesis rooms", "episodes": 125, "seeds": 4, "arena": 0.99}
+            | {f: 0.99 for f in FAMILIES},
+        ]
+    )
+    g = gz.goal(t, FAMILIES)
+    assert g.goal_reached.tolist() == [True, False]
+
+
+def test_rooms_are_named_from_the_config(sweep):
+    names = {gz.rooms(p.cfg) for p in sweep.points}
+    assert names == {
+        "thesis rooms",
+        "procedural (mixture)",
+        "heterogeneous (cylinders, boxes, walls, mixture, mixture)",
+    }
