@@ -102,6 +102,7 @@ def _row(setting_, aggregator, attack, byz, participation, robots, honest):
         participation=participation,
         robots=robots,
         success_honest=honest,
+        success_honest_std=0.05,
         success_but_last=honest - 0.05 if not byz else np.nan,
     )
 

@@ -159,6 +159,7 @@ def verdict(t: pd.DataFrame) -> pd.DataFrame:
             {
                 "check": "30% absent every round",
                 "value": drop.success_honest,
+                "value_std": drop.success_honest_std,
                 "reference": full.success_honest,
                 "ratio": drop.success_honest / full.success_honest,
                 "passes": drop.success_honest >= (1 - WITHIN) * full.success_honest,
@@ -180,16 +181,19 @@ def verdict(t: pd.DataFrame) -> pd.DataFrame:
                 "check": f"1 of 5 Byzantine, {attack}",
                 "best": AGGREGATOR_NAMES[best.aggregator],
                 "value": best.success_honest,
+                "value_std": best.success_honest_std,
                 "reference": full.success_honest,
                 "ratio": best.success_honest / full.success_honest,
                 "clean_same_robots": full.success_but_last,
                 "honest_fleet": fleet.success_honest if fleet is not None else np.nan,
+                "honest_fleet_std": fleet.success_honest_std if fleet is not None else np.nan,
                 "fedavg": fedavg.success_honest if fedavg is not None else np.nan,
                 "aggregators_run": len(robust),
                 "passes": bool(ok),
             }
         )
-    cols = ["check", "best", "value", "reference", "ratio", "clean_same_robots", "honest_fleet", "fedavg"]
+    cols = ["check", "best", "value", "value_std", "reference", "ratio", "clean_same_robots", "honest_fleet"]
+    cols += ["honest_fleet_std", "fedavg"]
     cols += ["aggregators_run", "passes"]
     return pd.DataFrame(rows, columns=cols)
 
