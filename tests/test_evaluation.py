@@ -474,3 +474,27 @@ def test_byzantine_robots_are_summarized_apart(tiny_run, tmp_path, capsys):
         assert row.success_honest == pytest.approx(want[row.family])
     # a run without Byzantine robots has no such blocks
     assert "honest_agents" not in evaluate_run(run_dir, world=world_file, attempts=1, max_steps=16).summary
+
+
+def test_robustness_report_evaluates_points_and_notes_a_diverged_one(tiny_run, tmp_path):
+    """The robustness report evaluates every finished point on a world and reports, instead of
+    failing on, a point whose actors hold NaN (a run diverged under attack)."""
+    import shutil
+
+    from fedjax_nav.experiments.robustness import evaluate_arena
+    from fedjax_nav.training.sweep import load_sweep
+
+    run_dir, _ = tiny_run
+    spec = {"name": "r", "base": str(run_dir / "config.yaml"), "seeds": 2, "grid": {"ddpg.lr": [0.001, 0.002]}}
+    (tmp_path / "r.yaml").write_text(yaml.safe_dump(spec))
+    sweep = load_sweep(tmp_path / "r.yaml")
+    ok, bad = (tmp_path / "points" / p.id for p in sweep.points)
+    for d in (ok, bad):
+        shutil.copytree(run_dir, d, ignore=shutil.ignore_patterns("eval"))
+    with np.load(bad / "params.npz") as z:
+        np.savez(bad / "params.npz", **{k: np.full_like(z[k], np.nan) for k in z.files})
+    said = []
+    notes = evaluate_arena(sweep, tmp_path / "points", attempts=1, echo=said.append)
+    assert list(notes) == [sweep.points[1].id] and "NaN" in notes[sweep.points[1].id]
+    assert (ok / "eval" / "eval" / "eval.json").exists() and not (bad / "eval" / "eval" / "eval.json").exists()
+    assert len(said) == 2

@@ -11,13 +11,13 @@ robustness.md, robustness_learning.png, robustness_eval.png. Points not trained 
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 from pathlib import Path
 from typing import Callable
 
+from fedjax_nav import rundir
 from fedjax_nav.analysis import robustness as rb
-from fedjax_nav.experiments.reproduce import evaluate_points
+from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.experiments.thesis_report import _md_table
 from fedjax_nav.rundir import atomic_write
 from fedjax_nav.training.sweep import Sweep
@@ -26,9 +26,32 @@ TABLES = ("robustness.csv", "robustness_per_seed.csv", "robustness_verdict.csv")
 FIGURES = ("robustness_learning.png", "robustness_eval.png")
 
 
+def evaluate_arena(sweep: Sweep, points: Path, attempts: int, echo: Callable) -> dict[str, str]:
+    """Evaluate every finished point on the thesis arena (kept in its eval/eval/ and reused when
+    the same attempts were asked for). A point that cannot be evaluated (a diverged run's NaN
+    actors) is reported, not fatal: returns {point id: why}."""
+    from fedjax_nav.evaluation import EvalError, evaluate_run, read_evaluation, write_run
+
+    notes = {}
+    for p, _ in finished(sweep, points):
+        d = points / p.id
+        if not (d / rundir.PARAMS).exists():
+            continue
+        ev = read_evaluation(rundir.eval_dir(d, "eval"))
+        if ev is not None and ev.get("attempts_requested") == attempts:
+            continue
+        try:
+            write_run(evaluate_run(d, "eval", attempts=attempts), figures=False)
+            echo(f"evaluated {rb.setting(p.cfg)} ({p.id})")
+        except EvalError as e:
+            notes[p.id] = str(e).split(": ", 1)[-1]
+            echo(f"not evaluated {rb.setting(p.cfg)} ({p.id}): {notes[p.id]}")
+    return notes
+
+
 def markdown(t, v) -> str:
     cols = ["setting", "seeds", "success_honest", "success_honest_std", "success_all", "eval_honest"]
-    cols += ["eval_honest_std", "eval_all", "bytes_sent_per_seed", "skipped_rounds"]
+    cols += ["eval_honest_std", "eval_all", "bytes_sent_per_seed", "skipped_rounds", "diverged_seeds", "eval_note"]
     lines = ["# Robustness (docs/robustness.md)", "", "## Acceptance checks on what has been run", ""]
     lines += [_md_table(v) if len(v) else "(nothing to check yet)", "", "## Every point", ""]
     lines += [_md_table(t[cols].round(3)) if len(t) else "(no finished point)", ""]
@@ -48,9 +71,10 @@ def report(
     tables and the figures where asked (results/, docs/img/robustness/). Returns the paths."""
     out = Path(out)
     points = out / "points"
-    if evaluate:
-        evaluate_points([dataclasses.replace(sweep, evaluate=True)], points, attempts, echo)
+    notes = evaluate_arena(sweep, points, attempts, echo) if evaluate else {}
     t, ps = rb.table(sweep, points), rb.per_seed(sweep, points)
+    if len(t):
+        t["eval_note"] = [notes.get(p, "") for p in t.point]
     v = rb.verdict(t) if len(t) else t
     for name, df in zip(TABLES, (t, ps, v)):
         atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
