@@ -83,6 +83,11 @@ def test_the_table_reads_each_points_summary_and_evaluation(sweep, tmp_path):
     want = (np.mean([e % 4 != 0 for e in last]) + 1.0) / 2
     assert r.loc["FedAvg, clean", "success_but_last"] == pytest.approx(want)
     assert np.isnan(r.loc["median, noise x1", "success_but_last"])
+    m = rb.matrix(t, "success_honest", 1)
+    assert list(m.columns) == ["clean", "noise"] and list(m.index) == ["FedAvg", "median"]
+    assert m.loc["median", "noise"] == "0.800 ± 0.050" and m.loc["FedAvg", "clean"] == "0.850 ± 0.050"
+    assert m.loc["median", "clean"] == "" and m.loc["FedAvg", "noise"] == ""  # not run
+    assert rb.matrix(t, "eval_honest", 1).loc["FedAvg", "clean"] == "n/a"  # run, not evaluated
     ps = pd.read_csv(tmp_path / "robustness_per_seed.csv")
     assert ps[ps.setting == "median, noise x1"].eval_honest.tolist() == [0.5, 0.7]
     assert [p.name for p in out["figures"]] == ["robustness_learning.png", "robustness_eval.png"]

@@ -198,17 +198,31 @@ def verdict(t: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=cols)
 
 
-def _grid(t: pd.DataFrame, byzantine: int, column: str) -> tuple[list, list, np.ndarray, np.ndarray]:
+def _grid(t: pd.DataFrame, byzantine: int, column: str) -> tuple:
+    """(aggregators, attacks, mean, std, ran): the [aggregator, attack] cells of `column`."""
     fl = t[(t.method == "flddpg") & (t.robots == 5) & (t.participation == 1.0)]
     fl = fl[(fl.byzantine == byzantine) | (fl.attack == "clean")]
     aggs = [a for a in AGGREGATOR_NAMES if a in set(fl.aggregator)]
     attacks = [a for a in ("clean", *ATTACKS[1:]) if a in set(fl.attack)]
     mean = np.full((len(aggs), len(attacks)), np.nan)
     std = mean.copy()
+    ran = np.zeros(mean.shape, bool)
     for _, r in fl.iterrows():
         i, j = aggs.index(r.aggregator), attacks.index(r.attack)
-        mean[i, j], std[i, j] = r[column], r[f"{column}_std"]
-    return aggs, attacks, mean, std
+        mean[i, j], std[i, j], ran[i, j] = r[column], r[f"{column}_std"], True
+    return aggs, attacks, mean, std, ran
+
+
+def matrix(t: pd.DataFrame, column: str = "success_honest", byzantine: int = 1) -> pd.DataFrame:
+    """Aggregator (rows) x attack (columns, 'clean' first) of 'mean +- std' of `column` over
+    seeds, for 5 robots, everyone taking part and `byzantine` Byzantine clients; '' where not run,
+    'n/a' where run without a value (not evaluated, or its actors are NaN)."""
+    aggs, attacks, mean, std, ran = _grid(t, byzantine, column)
+    cells = [
+        [f"{m:.3f} ± {s:.3f}" if np.isfinite(m) else ("n/a" if r else "") for m, s, r in zip(mr, sr, rr)]
+        for mr, sr, rr in zip(mean, std, ran)
+    ]
+    return pd.DataFrame(cells, index=[AGGREGATOR_NAMES[a] for a in aggs], columns=attacks)
 
 
 def figure(t: pd.DataFrame, path: str | Path, column: str = "success_honest", title: str = "") -> Path:
@@ -223,11 +237,13 @@ def figure(t: pd.DataFrame, path: str | Path, column: str = "success_honest", ti
     counts = sorted(int(b) for b in set(t.byzantine) if b > 0) or [1]
     fig, axes = plt.subplots(1, len(counts), figsize=(6.4 * len(counts), 4.6), squeeze=False)
     for ax, b in zip(axes[0], counts):
-        aggs, attacks, mean, std = _grid(t, b, column)
+        aggs, attacks, mean, std, ran = _grid(t, b, column)
         ax.imshow(np.ma.masked_invalid(mean), cmap="viridis", vmin=0, vmax=1, aspect="auto")
         for i in range(len(aggs)):
             for j in range(len(attacks)):
-                if np.isfinite(mean[i, j]):
+                if ran[i, j] and not np.isfinite(mean[i, j]):
+                    ax.text(j, i, "n/a", ha="center", va="center", fontsize=8)
+                elif np.isfinite(mean[i, j]):
                     txt = f"{mean[i, j]:.2f}\n±{std[i, j]:.2f}" if np.isfinite(std[i, j]) else f"{mean[i, j]:.2f}"
                     ax.text(j, i, txt, ha="center", va="center", fontsize=8, color="w" if mean[i, j] < 0.6 else "k")
         ax.set_xticks(range(len(attacks)), attacks, rotation=30)
