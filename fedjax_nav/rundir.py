@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 from pathlib import Path
 from typing import Any, Callable
 
@@ -212,6 +213,14 @@ def write_params(run_dir: str | Path, agents) -> Path:
     """params.npz: every actor and critic leaf, [seed, net, ...] for a stacked run."""
     flat = flatten_params(agents)
     return atomic_write(Path(run_dir) / PARAMS, lambda p: np.savez(open(p, "wb"), **flat))
+
+
+def copy_into(dest: str | Path, files: dict[str, str | Path]) -> list[Path]:
+    """Copy files into the folder `dest` (created): {name in dest: source}, each copy atomic (a
+    report's small tables to results/, its figures to docs/img/). Returns the copies."""
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    return [atomic_write(dest / name, lambda tmp, src=src: shutil.copyfile(src, tmp)) for name, src in files.items()]
 
 
 def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:

@@ -20,6 +20,7 @@ import pandas as pd
 from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.federated.attacks import ATTACKS
+from fedjax_nav.training.metrics import success_last_per_seed
 from fedjax_nav.training.sweep import Sweep
 
 AGGREGATOR_NAMES = {
@@ -65,8 +66,7 @@ def _success_but_last(folder: Path, last: int = LAST) -> float:
     if not f.exists():
         return np.nan
     df = pd.read_csv(f, usecols=["episode", "seed", "robot", "reached_goal"])
-    df = df[(df.episode >= df.episode.max() + 1 - last) & (df.robot < df.robot.max())]
-    return float(df.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean().mean())
+    return float(success_last_per_seed(df[df.robot < df.robot.max()], last).mean())
 
 
 def table(sweep: Sweep, points_dir: Path) -> pd.DataFrame:

@@ -40,6 +40,7 @@ from fedjax_nav.evaluation.runs import (
     actor_policy,
     evaluate_run,
     evaluate_runs,
+    evaluated,
     load_run,
 )
 
@@ -62,6 +63,7 @@ __all__ = [
     "evaluate_policy",
     "evaluate_run",
     "evaluate_runs",
+    "evaluated",
     "load_run",
     "read_evaluation",
     "replacement",

@@ -203,6 +203,18 @@ def evaluate_run(
     return RunEvaluation(run, result, frame, summary, w, meta, world_arg)
 
 
+def evaluated(run_dir: str | Path, world: str | Path = "eval", attempts: int = ATTEMPTS, figures: bool = False):
+    """The run's evaluation on `world` (eval.json's dict), evaluated first unless one asked with the
+    same attempts is kept in RUN/eval/<world>/ (the reports over many runs: reproduce, robustness,
+    generalization). Returns (that dict, whether it was evaluated now)."""
+    folder = rundir.eval_dir(run_dir, world)
+    ev = report.read_evaluation(folder)
+    if ev is not None and ev.get("attempts_requested") == attempts:
+        return ev, False
+    report.write_run(evaluate_run(run_dir, world, attempts=attempts), figures=figures)
+    return report.read_evaluation(folder), True
+
+
 def evaluate_runs(
     run_dirs: list[str | Path],
     world: str | Path = "eval",

@@ -12,7 +12,6 @@ generalization_goal.csv, generalization.md, generalization_<episodes>.png per tr
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 from typing import Callable
 
@@ -28,12 +27,10 @@ TABLES = ("generalization.csv", "generalization_per_seed.csv", "generalization_g
 def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
     """The arena (protocol of docs/evaluation.md, figures drawn) and the suite, unless already
     evaluated with the same attempts."""
-    from fedjax_nav.evaluation import evaluate_run, read_evaluation, write_run
+    from fedjax_nav.evaluation import evaluated
     from fedjax_nav.evaluation.suite import evaluate_suite, write_suite
 
-    ev = read_evaluation(rundir.eval_dir(folder, gz.ARENA))
-    if ev is None or ev.get("attempts_requested") != arena_attempts:
-        write_run(evaluate_run(folder, gz.ARENA, attempts=arena_attempts), figures=True)
+    if evaluated(folder, gz.ARENA, arena_attempts, figures=True)[1]:
         echo(f"evaluated {folder.name} on the arena")
     done = rundir.eval_dir(folder, suite) / "suite.json"
     if not done.exists() or json.loads(done.read_text()).get("attempts_per_agent") != suite_attempts:
@@ -78,16 +75,13 @@ def report(
     figs = [gz.figure(t, fams, out / f"generalization_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
     copied = []
     if copy_tables is not None:
-        Path(copy_tables).mkdir(parents=True, exist_ok=True)
-        copied += [shutil.copyfile(out / n, Path(copy_tables) / n) for n in TABLES]
+        copied += rundir.copy_into(copy_tables, {n: out / n for n in TABLES})
     if copy_figures is not None:
-        dest = Path(copy_figures)
-        dest.mkdir(parents=True, exist_ok=True)
-        copied += [shutil.copyfile(f, dest / f.name) for f in figs]
+        files = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
             src = rundir.eval_dir(points / r.point, gz.ARENA) / "eval_trajectories.png"
             if src.exists():
-                name = f"arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}.png"
-                copied.append(shutil.copyfile(src, dest / name))
+                files[f"arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}.png"] = src
+        copied += rundir.copy_into(copy_figures, files)
     echo(f"generalization report: {len(t)} point(s) in {out}/generalization.md; {len(figs)} figure(s)")
     return {"points": len(t), "figures": figs, "copied": copied}

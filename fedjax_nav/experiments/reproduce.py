@@ -117,7 +117,7 @@ def evaluate_points(sweeps: list[sw.Sweep], points_dir: Path, attempts: int, ech
     """Evaluate every point of the experiments marked `evaluate` on the thesis arena (kept in the
     point's `eval/eval/` folder and reused when the same attempts were asked for). One row per point."""
     from fedjax_nav import rundir
-    from fedjax_nav.evaluation import evaluate_run, read_evaluation, write_run
+    from fedjax_nav.evaluation import evaluated
 
     rows, seen = [], set()
     for s in sweeps:
@@ -128,11 +128,8 @@ def evaluate_points(sweeps: list[sw.Sweep], points_dir: Path, attempts: int, ech
             if p.id in seen or not (d / rundir.PARAMS).exists():
                 continue
             seen.add(p.id)
-            folder = rundir.eval_dir(d, "eval")
-            ev = read_evaluation(folder)
-            if ev is None or ev.get("attempts_requested") != attempts:
-                write_run(evaluate_run(d, "eval", attempts=attempts), figures=False)
-                ev = read_evaluation(folder)
+            ev, now = evaluated(d, "eval", attempts)
+            if now:
                 echo(
                     f"evaluated {p.cfg.method} ({p.id}): success {ev['all_agents']['overall']['success_rate']:.3f}"
                     f" over {ev['episodes']} episodes"

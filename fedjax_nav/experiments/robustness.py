@@ -11,7 +11,6 @@ robustness.md, robustness_learning.png, robustness_eval.png. Points not trained 
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Callable
 
@@ -19,7 +18,6 @@ from fedjax_nav import rundir
 from fedjax_nav.analysis import robustness as rb
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.experiments.thesis_report import _md_table
-from fedjax_nav.rundir import atomic_write
 from fedjax_nav.training.sweep import Sweep
 
 TABLES = ("robustness.csv", "robustness_per_seed.csv", "robustness_verdict.csv")
@@ -30,19 +28,16 @@ def evaluate_arena(sweep: Sweep, points: Path, attempts: int, echo: Callable) ->
     """Evaluate every finished point on the thesis arena (kept in its eval/eval/ and reused when
     the same attempts were asked for). A point that cannot be evaluated (a diverged run's NaN
     actors) is reported, not fatal: returns {point id: why}."""
-    from fedjax_nav.evaluation import EvalError, evaluate_run, read_evaluation, write_run
+    from fedjax_nav.evaluation import EvalError, evaluated
 
     notes = {}
     for p, _ in finished(sweep, points):
         d = points / p.id
         if not (d / rundir.PARAMS).exists():
             continue
-        ev = read_evaluation(rundir.eval_dir(d, "eval"))
-        if ev is not None and ev.get("attempts_requested") == attempts:
-            continue
         try:
-            write_run(evaluate_run(d, "eval", attempts=attempts), figures=False)
-            echo(f"evaluated {rb.setting(p.cfg)} ({p.id})")
+            if evaluated(d, "eval", attempts)[1]:
+                echo(f"evaluated {rb.setting(p.cfg)} ({p.id})")
         except EvalError as e:
             notes[p.id] = str(e).split(": ", 1)[-1]
             echo(f"not evaluated {rb.setting(p.cfg)} ({p.id}): {notes[p.id]}")
@@ -83,8 +78,8 @@ def report(
         t["eval_note"] = [notes.get(p, "") for p in t.point]
     v = rb.verdict(t) if len(t) else t
     for name, df in zip(TABLES, (t, ps, v)):
-        atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
-    atomic_write(out / "robustness.md", lambda p: Path(p).write_text(markdown(t, v)))
+        rundir.atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
+    rundir.atomic_write(out / "robustness.md", lambda p: Path(p).write_text(markdown(t, v)))
     figs = []
     if len(t):
         learn = "learning success of honest robots, last 25 episodes"
@@ -93,9 +88,9 @@ def report(
             arena = "evaluation success of honest agents, thesis arena"
             figs.append(rb.figure(t, out / FIGURES[1], "eval_honest", arena))
     copied = []
-    for dest, names in ((copy_tables, TABLES), (copy_figures, [f.name for f in figs])):
-        if dest is not None:
-            Path(dest).mkdir(parents=True, exist_ok=True)
-            copied += [shutil.copyfile(out / n, Path(dest) / n) for n in names]
+    if copy_tables is not None:
+        copied += rundir.copy_into(copy_tables, {n: out / n for n in TABLES})
+    if copy_figures is not None:
+        copied += rundir.copy_into(copy_figures, {f.name: f for f in figs})
     echo(f"robustness report: {len(t)} point(s) in {out}/robustness.md; {len(figs)} figure(s)")
     return {"points": len(t), "tables": [out / n for n in TABLES], "figures": figs, "copied": copied}

@@ -75,14 +75,20 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
     return df
 
 
+def success_last_per_seed(df: pd.DataFrame, last: int = 25) -> pd.Series:
+    """Per seed: the share of the frame's robots that reached the goal, per episode, averaged over
+    the run's last `last` episodes (pass the rows of some robots for their success alone)."""
+    tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
+    return tail.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean()
+
+
 def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -> dict:
     """Success proportion and reward over the last `last` episodes: mean and std over seeds."""
     per_ep = df.groupby(["seed", "episode"]).agg(success=("reached_goal", "mean"), reward=("reward", "mean"))
     E = int(df["episode"].max()) + 1
     tail = per_ep[per_ep.index.get_level_values("episode") >= E - last].groupby("seed").mean()
     honest_df = df[df["byzantine"] == 0] if "byzantine" in df else df
-    honest = honest_df[honest_df["episode"] >= E - last].groupby(["seed", "episode"])["reached_goal"].mean()
-    honest = honest.groupby("seed").mean()
+    honest = success_last_per_seed(honest_df, last)
     per_seed_first = df.groupby(["seed", "episode"]).first().groupby("seed")
     sent = per_seed_first["fed_bytes"].sum() if "fed_bytes" in df else None
     skipped = per_seed_first["fed_skipped"].sum() if "fed_skipped" in df else None
