@@ -398,3 +398,41 @@ def test_every_traced_field_is_an_input_the_program_uses():
         )
     )
     assert not unused, f"traced fields the program never reads: {sorted(unused)}"
+
+
+def test_a_grid_over_episodes_trains_its_longest_run_and_saves_the_shorter_from_its_start(tmp_path):
+    """run.episodes [2, 4], seeds 2 and 1 (points) : one job of 4 episodes and 2 seeds, the
+    2-episode point written from its first 2 episodes, equal to that config trained alone."""
+    path = write_sweep(tmp_path, "budgets", grid={"run.episodes": [2, 4]})
+    sweep = sw.load_sweep(path)
+    jobs = sw.fold_prefixes(sw.merge_jobs(sweep.points))
+    (job,) = jobs
+    assert job.cfg.run.episodes == 4 and [p.cfg.run.episodes for p in job.prefixes] == [2]
+    out = tmp_path / "out"
+    summ, stats = run_sweep(sweep, out, progress=False, echo=lambda s: None)
+    assert stats["prefixes"] == 1 and len(stats["groups"]) == 1 and stats["groups"][0]["traces"] == 1
+    short, long = sweep.points
+    s = json.loads((out / "points" / short.id / "summary.json").read_text())
+    assert s["episodes_done"] == 2 and s["seeds"] == 2 and s["prefix_of"] == long.id
+    train(short.cfg, tmp_path / "alone", progress=False)
+    a, b = _run_metrics(tmp_path / "alone"), _run_metrics(out / "points" / short.id)
+    assert list(a.columns) == list(b.columns) and len(a) == len(b)
+    for k in ("goals", "reached_goal", "collisions", "fed_events", "seed", "episode", "robot"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    for k in ("reward", "critic_loss", "actor_loss", "q", "epsilon"):
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    with np.load(tmp_path / "alone" / "params.npz") as za, np.load(out / "points" / short.id / "params.npz") as zb:
+        for k in za.files:
+            np.testing.assert_allclose(za[k], zb[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    long_df = _run_metrics(out / "points" / long.id)
+    assert long_df["episode"].max() == 3
+    np.testing.assert_array_equal(long_df[long_df.episode < 2]["reward"], b["reward"])
+    # a rerun trains nothing; a budget that is not a multiple of the chunk stays its own job
+    assert run_sweep(sweep, out, progress=False, echo=lambda s: None)[1]["groups"] == []
+    from dataclasses import replace
+
+    def budget(cfg, episodes):
+        return replace(cfg, run=replace(cfg.run, chunk_episodes=2, episodes=episodes))
+
+    assert len(sw.fold_prefixes([sw.Job(budget(short.cfg, 3), "a"), sw.Job(budget(long.cfg, 4), "b")])) == 2
+    assert len(sw.fold_prefixes([sw.Job(budget(short.cfg, 2), "a"), sw.Job(budget(long.cfg, 4), "b")])) == 1

@@ -18,7 +18,7 @@ from fedjax_nav import rundir
 from fedjax_nav.training.hparams import HParams
 from fedjax_nav.training.metrics import metrics_frame, summarize
 from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget, plan
-from fedjax_nav.training.sweep.spec import Job
+from fedjax_nav.training.sweep.spec import Job, fold_prefixes
 from fedjax_nav.training.tblog import TensorBoardLog
 from fedjax_nav.training.trainer import Trainer
 
@@ -120,6 +120,12 @@ def run_batch(
                     df = metrics_frame({k: v[lo : lo + n] for k, v in m.items()}, job.cfg, trainer)
                     tb[job.id].episodes(df.assign(episode=df["episode"] + first))
             done = first + K
+            for job, lo, _ in spans:  # shorter budgets of the same run (spec.fold_prefixes)
+                for pre in (p for p in job.prefixes if p.cfg.run.episodes == done):
+                    k = pre.cfg.run.seeds
+                    extra = {"prefix_of": job.id, "wall_s": (time.time() - t0) * k / group.batch_rows}
+                    rows = {key: v[lo : lo + k] for key, v in metrics.items()}
+                    write_point(points_dir, pre, trainer, _slice(states, lo, k), rows, extra)
             bar.update(K)
             bar.set_postfix(success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}")
             if every and done % every == 0 and done < E:
@@ -169,14 +175,24 @@ def run_jobs(
     points_dir.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if not is_done(points_dir, j)]
     skipped = len(jobs) - len(todo)
+    todo = fold_prefixes(todo)
+    prefixes = sum(len(j.prefixes) for j in todo)
     budget = budget or default_memory_budget()
     groups = plan(todo, budget, devices) if todo else []
     n_batches = sum(len(g.batches) for g in groups)
+    saved = f" (and {prefixes} saved from their first episodes)" if prefixes else ""
     echo(
-        f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(todo)} to train in {len(groups)} "
+        f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(todo)} to train{saved} in {len(groups)} "
         f"compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB, {devices} device(s))"
     )
-    stats = {"points": len(jobs), "skipped": skipped, "groups": [], "wall_s": 0.0, "devices": devices}
+    stats = {
+        "points": len(jobs),
+        "skipped": skipped,
+        "prefixes": prefixes,
+        "groups": [],
+        "wall_s": 0.0,
+        "devices": devices,
+    }
     t0 = time.time()
     outer = tqdm(total=n_batches, desc=desc, unit="batch", disable=not progress or n_batches < 2)
     try:

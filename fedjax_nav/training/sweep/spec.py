@@ -230,6 +230,7 @@ class Job:
 
     cfg: Config
     id: str
+    prefixes: tuple = ()  # shorter jobs saved from this job's rows when it reaches their episodes
 
 
 def merge_jobs(points) -> list[Job]:
@@ -240,6 +241,32 @@ def merge_jobs(points) -> list[Job]:
         if old is None or p.cfg.run.seeds > old.run.seeds:
             by_id[p.id] = p.cfg
     return [Job(c, i) for i, c in by_id.items()]
+
+
+def fold_prefixes(jobs: list[Job]) -> list[Job]:
+    """Jobs that differ only in `run.episodes` are one run: nothing the program computes depends on
+    the number of episodes still to come (epsilon decays per step, rooms and federated rounds count
+    from episode 0), so the shorter jobs are the longest one's first episodes. The longest job
+    (with the most seeds any of them asks for) keeps the others as `prefixes`, written when it
+    reaches their episode counts (`run_batch`); a budget that is not a multiple of
+    `run.chunk_episodes` stays a job of its own. A grid over `run.episodes` costs its longest run."""
+    from dataclasses import replace
+
+    runs: dict[str, list[Job]] = {}
+    for j in jobs:
+        runs.setdefault(point_id(replace(j.cfg, run=replace(j.cfg.run, episodes=1))), []).append(j)
+    out = []
+    for js in runs.values():
+        js = sorted(js, key=lambda j: -j.cfg.run.episodes)
+        head, rest = js[0], js[1:]
+        K = head.cfg.run.chunk_episodes
+        pre = tuple(j for j in rest if j.cfg.run.episodes < head.cfg.run.episodes and j.cfg.run.episodes % K == 0)
+        out += [j for j in rest if j not in pre]
+        if pre:
+            seeds = max(j.cfg.run.seeds for j in (head, *pre))
+            head = Job(replace(head.cfg, run=replace(head.cfg.run, seeds=seeds)), head.id, pre)
+        out.append(head)
+    return out
 
 
 def parse_bytes(text: str | int) -> int:
