@@ -5,6 +5,7 @@ docs/img/generalization/.
 
     fedjax-nav sweep generalization --out runs/sweeps/generalization      # train (resumable)
     python scripts/generalization_report.py runs/sweeps/generalization    # report on what has finished
+    python scripts/generalization_report.py runs/sweeps/generalization --sweep generalization_levers
 """
 
 import argparse
@@ -15,7 +16,11 @@ from fedjax_nav.training.sweep import load_sweep
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("out", help="the sweep's output folder (its points/ are read)")
-ap.add_argument("--sweep", default=str(SWEEP_DIR / "generalization.yaml"), help="the sweep file")
+ap.add_argument(
+    "--sweep",
+    default=str(SWEEP_DIR / "generalization.yaml"),
+    help="the sweep file or shipped name; its name prefixes the report's files",
+)
 ap.add_argument("--suite", default="heldout", help="held-out suite (default heldout: 50 rooms per family x 4 goals)")
 ap.add_argument("--suite-attempts", type=int, default=1, help="attempts per agent, room and goal (default 1)")
 ap.add_argument("--attempts", type=int, default=4, help="arena attempts per agent and goal (default 4)")

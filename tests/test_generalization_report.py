@@ -102,3 +102,20 @@ def test_rooms_are_named_from_the_config(sweep):
         "procedural (mixture)",
         "heterogeneous (cylinders, boxes, walls, mixture, mixture)",
     }
+
+
+def test_another_sweep_over_the_same_points_reports_beside_it_named_by_its_points(sweep, tmp_path):
+    """generalization_levers shares its first point with the generalization sweep: its report
+    writes generalization_levers*.csv next to generalization*.csv, rows named by their labels."""
+    levers = load_sweep(SWEEP_DIR / "generalization_levers.yaml")
+    assert levers.points[0].id == _point(sweep, "flddpg-procedural").id
+    fams = {f: [0.5, 0.6] for f in FAMILIES}
+    for p in levers.points[:2]:
+        _write(tmp_path / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
+    report(sweep, tmp_path, evaluate=False, echo=lambda s: None)
+    out = report(levers, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    assert len(pd.read_csv(tmp_path / "generalization.csv")) == 1
+    t = pd.read_csv(tmp_path / "generalization_levers.csv")
+    assert t.label.tolist() == [p.label for p in levers.points[:2]]
+    assert pd.read_csv(tmp_path / "res" / "generalization_levers_goal.csv").label.tolist() == t.label.tolist()
+    assert [p.name for p in out["figures"]] == ["generalization_levers_125.png"]

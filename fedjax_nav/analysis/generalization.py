@@ -50,6 +50,7 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
         d = Path(points_dir) / p.id
         row = {
             "point": p.id,
+            "label": p.label,
             "method": p.cfg.method,
             "rooms": rooms(p.cfg),
             "episodes": p.cfg.run.episodes,
@@ -86,7 +87,8 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
         if eps.exists():
             fams = pd.read_csv(eps).groupby(["seed", "family"])["success"].mean().unstack()
         for seed, train in enumerate(s["success_last_per_seed"]):
-            row = {"point": p.id, "method": p.cfg.method, "rooms": rooms(p.cfg), "episodes": p.cfg.run.episodes}
+            row = {"point": p.id, "label": p.label, "method": p.cfg.method, "rooms": rooms(p.cfg)}
+            row["episodes"] = p.cfg.run.episodes
             row.update(seed=seed, train_success=train, arena=arena.get(str(seed), np.nan))
             if fams is not None and seed in fams.index:
                 row.update(fams.loc[seed].to_dict())
@@ -105,6 +107,7 @@ def goal(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
         ok = ok and all(np.isfinite(v) and v >= GOAL_FAMILY for v in fam.values())
         rows.append(
             {
+                "label": r.get("label", ""),
                 "method": r.method,
                 "rooms": r.rooms,
                 "episodes": r.episodes,
@@ -132,6 +135,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
     groups = [*families, "arena"]
     fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(groups) + 0.3 * len(t)), 4.4))
     width = 0.8 / max(len(t), 1)
+    same = t.duplicated(["method", "rooms", "episodes"], keep=False) if len(t) else []
     for i, (_, r) in enumerate(t.iterrows()):
         x = np.arange(len(groups)) + (i - (len(t) - 1) / 2) * width
         y = np.array([r.get(f, np.nan) for f in families] + [r.arena], float)
@@ -139,6 +143,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
         hi = np.array([r.get(f"{f}_ci_seeds_high", np.nan) for f in families] + [r.arena + r.arena_seed_std], float)
         err = np.nan_to_num(np.stack([y - lo, hi - y]).clip(min=0))
         label = f"{r.method.upper()}, {r['rooms']}" + ("" if episodes is not None else f", {r.episodes} ep.")
+        label += f", {r['label']}" if same.iloc[i] else ""  # points that differ in another field
         ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label)
     ax.axhline(GOAL_FAMILY, ls="--", c="gray", lw=0.8)
     ax.axhline(GOAL_ARENA, ls=":", c="gray", lw=0.8)

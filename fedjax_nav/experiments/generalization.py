@@ -5,8 +5,9 @@ figures.
 
     report(load_sweep("configs/sweeps/generalization.yaml"), "runs/sweeps/generalization")
 
-Report folder (the sweep's --out): generalization.csv, generalization_per_seed.csv,
-generalization_goal.csv, generalization.md, generalization_<episodes>.png per training budget.
+Report folder (the sweep's --out), named after the sweep (`generalization` here): <name>.csv,
+<name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget; so the
+report of another sweep over the same points folder (generalization_levers) writes beside it.
 """
 
 from __future__ import annotations
@@ -21,7 +22,10 @@ from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.experiments.thesis_report import _md_table
 from fedjax_nav.training.sweep import Sweep
 
-TABLES = ("generalization.csv", "generalization_per_seed.csv", "generalization_goal.csv")
+
+def tables(name: str) -> tuple[str, str, str]:
+    """The report's table files for the sweep `name`."""
+    return f"{name}.csv", f"{name}_per_seed.csv", f"{name}_goal.csv"
 
 
 def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
@@ -65,23 +69,25 @@ def report(
     t, ps = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite)
     fams = families_of(t)
     g = gz.goal(t, fams) if len(t) else t
-    for name, df in zip(TABLES, (t, ps, g)):
-        rundir.atomic_write(out / name, lambda p, df=df: df.to_csv(p, index=False))
-    cols = ["method", "rooms", "episodes", "seeds", "train_success", "train_success_std", "arena", *fams]
-    md = ["# Generalization (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
+    name, files = sweep.name, tables(sweep.name)
+    for fname, df in zip(files, (t, ps, g)):
+        rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
+    cols = ["label", "method", "rooms", "episodes", "seeds", "train_success", "train_success_std", "arena", *fams]
+    md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
     md += [_md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
     md += [_md_table(t[[c for c in cols if c in t]].round(3)) if len(t) else "(no finished point)", ""]
-    rundir.atomic_write(out / "generalization.md", lambda p: Path(p).write_text("\n".join(md)))
-    figs = [gz.figure(t, fams, out / f"generalization_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
+    rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
+    figs = [gz.figure(t, fams, out / f"{name}_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
     copied = []
     if copy_tables is not None:
-        copied += rundir.copy_into(copy_tables, {n: out / n for n in TABLES})
+        copied += rundir.copy_into(copy_tables, {n: out / n for n in files})
     if copy_figures is not None:
-        files = {f.name: f for f in figs}
+        figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
             src = rundir.eval_dir(points / r.point, gz.ARENA) / "eval_trajectories.png"
             if src.exists():
-                files[f"arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}.png"] = src
-        copied += rundir.copy_into(copy_figures, files)
-    echo(f"generalization report: {len(t)} point(s) in {out}/generalization.md; {len(figs)} figure(s)")
+                key = f"{name}_arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}"
+                figures[key + (f"_{r.point}" if key + ".png" in figures else "") + ".png"] = src
+        copied += rundir.copy_into(copy_figures, figures)
+    echo(f"{name} report: {len(t)} point(s) in {out}/{name}.md; {len(figs)} figure(s)")
     return {"points": len(t), "figures": figs, "copied": copied}
