@@ -35,3 +35,12 @@ def test_sweep_bench_times_one_by_one_and_batched():
     assert r["sweep_speedup"] == pytest.approx(r["one_by_one_s"] / r["sweep_s"], rel=1e-12)
     assert f"{r['sweep_speedup']:.2f}x" in bench.format_rows(rows)
     assert "one vmapped program" in bench.format_rows(rows)
+
+
+def test_a_train_row_names_procedural_rooms():
+    row = {"bench": "train", "method": "flddpg", "seeds": 1, "robots": 5, "agent_steps_per_s": 1000.0}
+    row |= {"agent_updates_per_s": 10.0, "gflops": 1.0, "fraction_of_ceiling": 0.1, "episode_s": 5.0}
+    row |= {"run_estimate_s": 625.0, "compile_s": 30.0}
+    fixed = bench.format_rows([row | {"rooms": "fixed"}])
+    proc = bench.format_rows([row | {"rooms": "procedural ['mixture']"}])
+    assert "rooms" not in fixed and "procedural ['mixture'] rooms, new every episode" in proc

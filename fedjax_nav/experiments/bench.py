@@ -145,6 +145,9 @@ def bench_train(
                 "method": cfg.method,
                 "seeds": s,
                 "robots": N,
+                "rooms": cfg.env.rooms
+                if cfg.env.rooms == "fixed"
+                else f"{cfg.env.rooms} {list(cfg.env.room_families)}",
                 "devices": devices,
                 "shard": shard if devices > 1 else None,
                 "padded_clients": tr.pad,
@@ -283,7 +286,8 @@ def format_rows(rows: list[dict]) -> str:
         else:
             lines.append(
                 f"| train {r['method']} | {r['seeds']} seed(s) x {r['robots']} robots"
-                f"{f', seeds over {d} devices' if (d := r.get('devices', 1)) > 1 else ''} | "
+                f"{f', seeds over {d} devices' if (d := r.get('devices', 1)) > 1 else ''}"
+                f"{f', {rooms} rooms, new every episode' if (rooms := r.get('rooms', 'fixed')) != 'fixed' else ''} | "
                 f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} agent-updates/s, "
                 f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
                 f"episode {r['episode_s']:.2f} s, 125-episode run (all its seeds) ~{r['run_estimate_s']:.0f} s; "
@@ -302,7 +306,11 @@ def main(args) -> int:
         ceiling = matmul_ceiling(512 if quick else 2048)
         rows.append({"bench": "ceiling", "gflops": ceiling})
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
-        rows += bench_train(seeds=(1,) if quick else (1, 8), ceiling=ceiling, overrides=over)
+        rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=over)
+        if not quick:  # right after it: the same run drawing a fresh procedural room per robot and episode
+            proc = ("env.rooms=procedural", "env.room_families=[mixture]")
+            rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, *proc))
+            rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over)
         n_dev = jax.local_device_count()
         if n_dev > 1 and not quick:  # the default fast path of `train --seeds 8` on this machine
             rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over, devices=n_dev)
