@@ -78,6 +78,8 @@ def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
     assert row.cylinders == pytest.approx(0.9) and row.arena == pytest.approx(1.0)
     assert [p.name for p in out["figures"]] == ["generalization_125.png"]
     assert (tmp_path / "res" / "generalization_goal.csv").exists()
+    md = (tmp_path / "generalization.md").read_text()  # mean [seed interval], mean +- seed std
+    assert "| 0.800 [0.80, 0.80] |" in md and "| 0.950 +- 0.050 |" in md and "label" not in md.split("## Every")[1]
 
 
 def test_the_goal_holds_only_when_every_family_and_the_arena_pass():

@@ -6,6 +6,7 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
 
     table(sweep, points_dir, suite)     one row per finished point
     per_seed(sweep, points_dir, suite)  one row per point and training seed
+    readable(table, families)           the same as strings (mean +- std, [seed CI]) for docs
     goal(table, families)               the issue's goal per procedurally trained point
     figure(table, families, path)       success per family and in the arena, with seed CIs
 """
@@ -94,6 +95,31 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
                 row.update(fams.loc[seed].to_dict())
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
+    """The table as strings for docs: training success and arena as mean +- std over seeds, each
+    held-out family (and all rooms) as mean [95% bootstrap interval over training seeds]."""
+
+    def pm(m, sd):
+        return "-" if not np.isfinite(m) else f"{m:.3f} +- {sd:.3f}"
+
+    def ci(r, f):
+        m, lo, hi = r.get(f, np.nan), r.get(f"{f}_ci_seeds_low", np.nan), r.get(f"{f}_ci_seeds_high", np.nan)
+        return "-" if not np.isfinite(m) else f"{m:.3f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{m:.3f}"
+
+    rows = []
+    for _, r in t.iterrows():
+        row = {"method": r.method.upper(), "rooms": r.rooms, "episodes": int(r.episodes), "seeds": int(r.seeds)}
+        row["label"] = r.get("label", "")
+        row["training, last 25"] = pm(r.train_success, r.train_success_std)
+        row["arena"] = pm(r.arena, r.arena_seed_std)
+        row.update({f: ci(r, f) for f in [*families, "all"]})
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    if len(t) and not t.duplicated(["method", "rooms", "episodes"]).any():
+        out = out.drop(columns="label")  # the other columns name every point
+    return out
 
 
 def goal(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:

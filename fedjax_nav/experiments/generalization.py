@@ -72,10 +72,11 @@ def report(
     name, files = sweep.name, tables(sweep.name)
     for fname, df in zip(files, (t, ps, g)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
-    cols = ["label", "method", "rooms", "episodes", "seeds", "train_success", "train_success_std", "arena", *fams]
     md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
     md += [_md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
-    md += [_md_table(t[[c for c in cols if c in t]].round(3)) if len(t) else "(no finished point)", ""]
+    md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
+    md += ["mean [95% bootstrap interval over training seeds].", ""]
+    md += [_md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
     figs = [gz.figure(t, fams, out / f"{name}_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
     copied = []
