@@ -121,3 +121,23 @@ def test_another_sweep_over_the_same_points_reports_beside_it_named_by_its_point
     assert t.label.tolist() == [p.label for p in levers.points[:2]]
     assert pd.read_csv(tmp_path / "res" / "generalization_levers_goal.csv").label.tolist() == t.label.tolist()
     assert [p.name for p in out["figures"]] == ["generalization_levers_125.png"]
+
+
+def test_the_probe_curve_averages_the_probe_episodes_over_robots_and_seeds(sweep, tmp_path):
+    p = _point(sweep, "flddpg-procedural")
+    _write(tmp_path / "points" / p.id, [0.4, 0.5], [0.2, 0.3], {f: [0.5, 0.6] for f in FAMILIES})
+    rows = []
+    for ep in range(10):
+        for seed in range(2):
+            for robot in range(5):
+                probe = (0.2 * seed + 0.1 * robot) if ep % 5 == 4 else np.nan  # the probe every 5 episodes
+                rows.append(
+                    {"episode": ep, "seed": seed, "robot": robot, "reached_goal": robot % 2, "eval_success": probe}
+                )
+    pd.DataFrame(rows).to_csv(tmp_path / "points" / p.id / "metrics.csv", index=False)
+    c = gz.probe_curves(sweep, tmp_path / "points")
+    assert c.episode.tolist() == [4, 9]
+    np.testing.assert_allclose(c.probe, [0.3, 0.3])  # robots 0.2 on average, seeds 0.2 apart
+    np.testing.assert_allclose(c.probe_seed_std, [0.1, 0.1])
+    np.testing.assert_allclose(c.train, [0.4, 0.4])
+    assert gz.probe_figure(c, tmp_path / "probe.png").stat().st_size > 0

@@ -9,6 +9,7 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
     readable(table, families)           the same as strings (mean +- std, [seed CI]) for docs
     goal(table, families)               the issue's goal per procedurally trained point
     figure(table, families, path)       success per family and in the arena, with seed CIs
+    probe_curves / probe_figure         the held-out probe during training (run.eval_every)
 """
 
 from __future__ import annotations
@@ -178,6 +179,56 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
     ax.set_ylabel("success (all agents)")
     ax.set_title("held-out families and the thesis arena" + (f", {episodes} training episodes" if episodes else ""))
     ax.legend(fontsize=7, ncol=2, loc="upper right")
+    fig.tight_layout()
+    out = rundir.save_figure(fig, path)
+    plt.close(fig)
+    return out
+
+
+def probe_curves(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
+    """The learning curve of generalisation: per finished point with a probe (`run.eval_every`),
+    per episode where the probe ran, the held-out probe's success and the training success of that
+    episode (means over seeds and robots), and the std over seeds of the probe's success."""
+    rows = []
+    for p, _ in finished(sweep, Path(points_dir)):
+        f = Path(points_dir) / p.id / rundir.METRICS
+        if not f.exists() or not p.cfg.run.eval_every:
+            continue
+        df = pd.read_csv(f)
+        per_seed = df.groupby(["episode", "seed"])[["eval_success", "reached_goal"]].mean()
+        per_seed = per_seed[per_seed["eval_success"].notna()]
+        g = per_seed.groupby("episode")
+        c = pd.DataFrame({"probe": g["eval_success"].mean(), "probe_seed_std": g["eval_success"].std(ddof=0)})
+        c["train"] = g["reached_goal"].mean()
+        c = c.reset_index().assign(point=p.id, label=p.label, method=p.cfg.method, rooms=rooms(p.cfg))
+        rows.append(c.assign(budget=p.cfg.run.episodes))
+    return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
+
+
+def probe_figure(curves: pd.DataFrame, path: str | Path) -> Path:
+    """One panel per method: the probe's success against the episode for each room source (or each
+    point label, where method and rooms do not tell points apart), the longest budget of each
+    (it holds the shorter ones' curves); band = +- seed std, dotted = training success."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    distinct = len(curves[["method", "rooms", "budget"]].drop_duplicates())
+    by = "rooms" if distinct == len(curves[["method", "label", "budget"]].drop_duplicates()) else "label"
+    longest = curves[curves.budget == curves.groupby(["method", by]).budget.transform("max")]
+    methods = list(dict.fromkeys(longest.method))
+    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
+    for ax, m in zip(axes[0], methods):
+        for src, c in longest[longest.method == m].groupby(by, sort=False):
+            (line,) = ax.plot(c.episode + 1, c.probe, label=src.split(" (")[0] if by == "rooms" else src)
+            ax.fill_between(c.episode + 1, c.probe - c.probe_seed_std, c.probe + c.probe_seed_std, alpha=0.2)
+            ax.plot(c.episode + 1, c.train, ls=":", c=line.get_color(), lw=0.8)
+        ax.set_title(m.upper())
+        ax.set_xlabel("episode")
+        ax.set_ylim(0, 1)
+    axes[0][0].set_ylabel("held-out probe success (solid), training (dotted)")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     out = rundir.save_figure(fig, path)
     plt.close(fig)

@@ -6,7 +6,8 @@ figures.
     report(load_sweep("configs/sweeps/generalization.yaml"), "runs/sweeps/generalization")
 
 Report folder (the sweep's --out), named after the sweep (`generalization` here): <name>.csv,
-<name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget; so the
+<name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget,
+<name>_probe.csv / .png (the held-out probe during training); so the
 report of another sweep over the same points folder (generalization_levers) writes beside it.
 """
 
@@ -79,6 +80,10 @@ def report(
     md += [_md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
     figs = [gz.figure(t, fams, out / f"{name}_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
+    curves = gz.probe_curves(sweep, points)
+    if len(curves):
+        rundir.atomic_write(out / f"{name}_probe.csv", lambda p: curves.to_csv(p, index=False))
+        figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
     copied = []
     if copy_tables is not None:
         copied += rundir.copy_into(copy_tables, {n: out / n for n in files})
