@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import pandas as pd
 
@@ -44,25 +45,36 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
 
     if isinstance(runs, pd.DataFrame):
         runs = {"": runs}
-    fig = Figure(figsize=(10, 3.6), layout="constrained")
+    n = len(runs)
+    below = n > 6  # many runs: the legend goes under the plots, in columns, instead of over a curve
+    rows = -(-n // 3) if below else 0
+    fig = Figure(figsize=(10, 3.6 + 0.2 * rows), layout="constrained")
     axes = fig.subplots(1, 2)
+    cmap = matplotlib.colormaps["tab10" if n <= 10 else "tab20"]  # no colour twice up to 20 runs
+    colors = {label: cmap(i % cmap.N) for i, label in enumerate(runs)}
     for label, df in runs.items():
         for ax, metric, name in zip(axes, ["success", "reward"], ["success proportion", "mean reward per step"]):
             ep, mu, sd = curves(df, metric, window)
-            (line,) = ax.plot(ep + 1, mu, label=label or None)
-            ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.2, color=line.get_color())
+            ax.plot(ep + 1, mu, label=label or None, color=colors[label])
+            ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.2, color=colors[label])
             ax.set_xlabel("episode")
             ax.set_ylabel(f"{name} ({window}-ep SMA)")
             ax.grid(alpha=0.3)
+    probe = False
     for label, df in runs.items():  # run.eval_every: greedy success on the held-out probe, beside training success
         if "eval_success" in df and df["eval_success"].notna().any():
+            probe = True
             ev = df.dropna(subset=["eval_success"]).groupby(["seed", "episode"])["eval_success"].mean()
             ev = ev.groupby("episode").agg(["mean", "std"]).fillna(0.0)
             x = ev.index.to_numpy() + 1
-            name = f"{label + ': ' if label else ''}held-out probe (greedy)"
-            (line,) = axes[0].plot(x, ev["mean"], "o--", ms=3, label=name)
-            axes[0].fill_between(x, ev["mean"] - ev["std"], ev["mean"] + ev["std"], alpha=0.15, color=line.get_color())
-    if any(runs) or any("eval_success" in df for df in runs.values()):
+            name = f"{label + ': ' if label else ''}held-out probe (greedy)" if n == 1 else None
+            axes[0].plot(x, ev["mean"], "o--", ms=3, label=name, color=colors[label])
+            axes[0].fill_between(x, ev["mean"] - ev["std"], ev["mean"] + ev["std"], alpha=0.15, color=colors[label])
+    if probe and n > 1:
+        axes[0].set_title("solid: training; dashed, dots: held-out probe (greedy)", fontsize=8)
+    if below:
+        fig.legend(*axes[1].get_legend_handles_labels(), loc="outside lower center", ncol=3, fontsize=7)
+    elif any(runs) or probe:
         axes[0].legend(fontsize=8)
     fig.suptitle(title)
     return save_figure(fig, path)
