@@ -436,3 +436,18 @@ def test_a_grid_over_episodes_trains_its_longest_run_and_saves_the_shorter_from_
 
     assert len(sw.fold_prefixes([sw.Job(budget(short.cfg, 3), "a"), sw.Job(budget(long.cfg, 4), "b")])) == 2
     assert len(sw.fold_prefixes([sw.Job(budget(short.cfg, 2), "a"), sw.Job(budget(long.cfg, 4), "b")])) == 1
+
+
+def test_two_sweeps_sharing_a_folder_keep_their_own_tables(tiny, tmp_path):
+    """A second sweep trained into the first one's folder (shared points) writes its tables under
+    tables/<name>/ and leaves the first sweep's results.csv, summary.csv and sweep.yaml as they were."""
+    out = tiny["out"]
+    before = {f: (out / f).read_bytes() for f in ("results.csv", "summary.csv", "sweep.yaml")}
+    subset = {"fed.tau": [0.5], "ddpg.buffer_size": [16]}  # one point of the tiny sweep
+    other = sw.load_sweep(write_sweep(tiny["folder"], "tiny-subset", grid=subset))
+    msgs = []
+    summ, stats = run_sweep(other, out, progress=False, echo=msgs.append)
+    assert stats["groups"] == [] and stats["tables"] == str(out / "tables" / "tiny-subset")  # shared point: no training
+    assert before == {f: (out / f).read_bytes() for f in before}
+    assert len(pd.read_csv(out / "tables" / "tiny-subset" / "summary.csv")) == 1 and len(summ) == 1
+    assert any("tables of sweep 'tiny'" in m for m in msgs)

@@ -206,7 +206,10 @@ def _sweep(args: argparse.Namespace) -> int:
         print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     traces = ", ".join(f"{g['method']}: {g['traces']}" for g in stats["groups"]) or "none (all points were done)"
     print(f"{stats['wall_s']:.0f} s; compilations per group: {traces}")
-    print(f"wrote {out}/ (summary.csv, results.csv, learning_curves.png, points/<id>/ run directories)")
+    print(
+        f"wrote {stats['tables']}/ (summary.csv, results.csv, learning_curves.png), "
+        f"{out}/points/<id>/ (run directories)"
+    )
     return 0
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Callable
 
 import pandas as pd
+import yaml
 
 from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import point_summaries, write_tables
@@ -26,7 +27,29 @@ def run_sweep(
     stats = run_jobs(
         merge_jobs(sweep.points), out, budget, progress, desc=f"sweep {sweep.name}", echo=echo, devices=devices
     )
-    write_tables(sweep, out / "points", out)
+    tables = tables_dir(sweep, out)
+    stats["tables"] = str(tables)
+    write_tables(sweep, out / "points", tables)
     summ = point_summaries(sweep, out / "points")
-    rundir.write_json(out / "sweep_stats.json", stats)
+    rundir.write_json(tables / "sweep_stats.json", stats)
+    if tables != out:
+        echo(f"{out} holds the tables of sweep {sweep_in(out)!r}: this sweep's tables are in {tables}")
     return summ, stats
+
+
+def sweep_in(out: Path) -> str | None:
+    """The name of the sweep whose tables `out` holds (its sweep.yaml), if any."""
+    f = Path(out) / "sweep.yaml"
+    try:
+        return (yaml.safe_load(f.read_text()) or {}).get("name") if f.exists() else None
+    except (OSError, yaml.YAMLError):
+        return None
+
+
+def tables_dir(sweep: Sweep, out: str | Path) -> Path:
+    """Where a sweep's tables go: `out`, unless `out` already holds another sweep's tables (two
+    sweeps sharing one points folder, e.g. generalization and generalization_levers): then
+    `out/tables/<name>/`, so that neither overwrites the other's results.csv and summary.csv."""
+    out = Path(out)
+    other = sweep_in(out)
+    return out if other in (None, sweep.name) else out / "tables" / sweep.name
