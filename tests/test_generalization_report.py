@@ -141,3 +141,15 @@ def test_the_probe_curve_averages_the_probe_episodes_over_robots_and_seeds(sweep
     np.testing.assert_allclose(c.probe_seed_std, [0.1, 0.1])
     np.testing.assert_allclose(c.train, [0.4, 0.4])
     assert gz.probe_figure(c, tmp_path / "probe.png").stat().st_size > 0
+
+
+def test_a_point_evaluated_with_the_same_attempts_is_not_evaluated_again(tmp_path):
+    from fedjax_nav.experiments.generalization import suite_done
+
+    d = tmp_path / "eval" / "heldout"
+    assert not suite_done(tmp_path, "heldout", 1)
+    d.mkdir(parents=True)
+    (d / "suite.json").write_text(json.dumps({"attempts": 1, "attempts_per_agent": 5}))  # SNDDPG: 1 net, 5 robots
+    assert suite_done(tmp_path, "heldout", 1) and not suite_done(tmp_path, "heldout", 2)
+    (d / "suite.json").write_text(json.dumps({"attempts_per_agent": 1}))  # written before "attempts" was kept
+    assert suite_done(tmp_path, "heldout", 1)

@@ -122,6 +122,7 @@ def evaluate_suite(
         "suites": list(suite_names(suite)),
         "rooms": int(R),
         "agents": int(A),
+        "attempts": int(attempts),  # as asked; per agent K (one-network methods drive K = attempts x robots)
         "attempts_per_agent": int(K),
         "episodes": int(len(ep)),
         "max_steps": T,

@@ -37,10 +37,19 @@ def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts
 
     if evaluated(folder, gz.ARENA, arena_attempts, figures=True)[1]:
         echo(f"evaluated {folder.name} on the arena")
-    done = rundir.eval_dir(folder, suite) / "suite.json"
-    if not done.exists() or json.loads(done.read_text()).get("attempts_per_agent") != suite_attempts:
+    if not suite_done(folder, suite, suite_attempts):
         write_suite(evaluate_suite(folder, suite, attempts=suite_attempts), rundir.eval_dir(folder, suite))
         echo(f"evaluated {folder.name} on suite {suite}")
+
+
+def suite_done(folder: Path, suite: str, attempts: int) -> bool:
+    """The point was evaluated on `suite` with `attempts` (as asked: a one-network method's
+    attempts per agent are `attempts` x robots, so that field alone would never match)."""
+    f = rundir.eval_dir(folder, suite) / "suite.json"
+    if not f.exists():
+        return False
+    s = json.loads(f.read_text())
+    return s.get("attempts", s.get("attempts_per_agent")) == attempts
 
 
 def families_of(t) -> list[str]:
