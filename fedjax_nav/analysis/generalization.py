@@ -160,7 +160,9 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
 
     t = t if episodes is None else t[t.episodes == episodes]
     groups = [*families, "arena"]
-    fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(groups) + 0.3 * len(t)), 4.4))
+    fig, ax = plt.subplots(
+        figsize=(max(7.0, 1.6 * len(groups) + 0.3 * len(t)), 4.4 + 0.16 * len(t)), layout="constrained"
+    )
     width = 0.8 / max(len(t), 1)
     same = t.duplicated(["method", "rooms", "episodes"], keep=False) if len(t) else []
     for i, (_, r) in enumerate(t.iterrows()):
@@ -170,7 +172,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
         hi = np.array([r.get(f"{f}_ci_seeds_high", np.nan) for f in families] + [r.arena + r.arena_seed_std], float)
         err = np.nan_to_num(np.stack([y - lo, hi - y]).clip(min=0))
         label = f"{r.method.upper()}, {r['rooms']}" + ("" if episodes is not None else f", {r.episodes} ep.")
-        label += f", {r['label']}" if same.iloc[i] else ""  # points that differ in another field
+        label = f"{r.method.upper()}: {r['label']}" if same.iloc[i] else label  # points that differ in another field
         ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label)
     ax.axhline(GOAL_FAMILY, ls="--", c="gray", lw=0.8)
     ax.axhline(GOAL_ARENA, ls=":", c="gray", lw=0.8)
@@ -178,8 +180,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("success (all agents)")
     ax.set_title("held-out families and the thesis arena" + (f", {episodes} training episodes" if episodes else ""))
-    ax.legend(fontsize=7, ncol=2, loc="upper right")
-    fig.tight_layout()
+    fig.legend(loc="outside lower center", fontsize=7, ncol=1 if any(same) else 2)  # under the bars, never over them
     out = rundir.save_figure(fig, path)
     plt.close(fig)
     return out
