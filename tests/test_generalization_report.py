@@ -144,12 +144,12 @@ def test_the_probe_curve_averages_the_probe_episodes_over_robots_and_seeds(sweep
 
 
 def test_a_point_evaluated_with_the_same_attempts_is_not_evaluated_again(tmp_path):
-    from fedjax_nav.experiments.generalization import suite_done
+    from fedjax_nav.evaluation.suite import kept_suite
 
     d = tmp_path / "eval" / "heldout"
-    assert not suite_done(tmp_path, "heldout", 1)
+    assert kept_suite(tmp_path, "heldout", 1) is None
     d.mkdir(parents=True)
-    (d / "suite.json").write_text(json.dumps({"attempts": 1, "attempts_per_agent": 5}))  # SNDDPG: 1 net, 5 robots
-    assert suite_done(tmp_path, "heldout", 1) and not suite_done(tmp_path, "heldout", 2)
-    (d / "suite.json").write_text(json.dumps({"attempts_per_agent": 1}))  # written before "attempts" was kept
-    assert suite_done(tmp_path, "heldout", 1)
+    (d / "suite.json").write_text(json.dumps({"attempts_requested": 1, "attempts_per_agent": 5}))  # SNDDPG: 1 net
+    assert kept_suite(tmp_path, "heldout", 1) is not None and kept_suite(tmp_path, "heldout", 2) is None
+    (d / "suite.json").write_text(json.dumps({"attempts_per_agent": 1}))  # written before attempts_requested was kept
+    assert kept_suite(tmp_path, "heldout", 1) is not None

@@ -17,6 +17,7 @@ when there are at least two. Written to RUN/eval/<suite>/ through fedjax_nav.run
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Callable
@@ -122,7 +123,7 @@ def evaluate_suite(
         "suites": list(suite_names(suite)),
         "rooms": int(R),
         "agents": int(A),
-        "attempts": int(attempts),  # as asked; per agent K (one-network methods drive K = attempts x robots)
+        "attempts_requested": int(attempts),  # as in eval.json; one-network methods drive K = attempts x robots
         "attempts_per_agent": int(K),
         "episodes": int(len(ep)),
         "max_steps": T,
@@ -173,6 +174,26 @@ def write_suite(result: dict, out: str | Path) -> list[Path]:
     rundir.atomic_write(paths[1], lambda p: result["families"].to_csv(p, index=False))
     rundir.write_json(paths[2], _finite(result["summary"]))
     return paths
+
+
+def kept_suite(run_dir: str | Path, suite: str, attempts: int = ATTEMPTS) -> dict | None:
+    """RUN/eval/<suite>/suite.json if it was evaluated with `attempts` asked (files written before
+    `attempts_requested` was kept: their attempts per agent), else None."""
+    f = rundir.eval_dir(run_dir, suite) / SUITE_JSON
+    if not f.exists():
+        return None
+    s = json.loads(f.read_text())
+    return s if s.get("attempts_requested", s.get("attempts_per_agent")) == attempts else None
+
+
+def evaluated_suite(run_dir: str | Path, suite: str, attempts: int = ATTEMPTS) -> tuple[dict, bool]:
+    """The run's evaluation on `suite`, evaluated first unless `kept_suite` holds it (the suite's
+    counterpart of `evaluation.evaluated`). Returns (suite.json's dict, whether it was evaluated now)."""
+    kept = kept_suite(run_dir, suite, attempts)
+    if kept is not None:
+        return kept, False
+    write_suite(evaluate_suite(run_dir, suite, attempts=attempts), rundir.eval_dir(run_dir, suite))
+    return kept_suite(run_dir, suite, attempts), True
 
 
 def evaluate_suite_runs(

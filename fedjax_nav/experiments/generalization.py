@@ -13,7 +13,6 @@ report of another sweep over the same points folder (generalization_levers) writ
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Callable
 
@@ -33,23 +32,12 @@ def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts
     """The arena (protocol of docs/evaluation.md, figures drawn) and the suite, unless already
     evaluated with the same attempts."""
     from fedjax_nav.evaluation import evaluated
-    from fedjax_nav.evaluation.suite import evaluate_suite, write_suite
+    from fedjax_nav.evaluation.suite import evaluated_suite
 
     if evaluated(folder, gz.ARENA, arena_attempts, figures=True)[1]:
         echo(f"evaluated {folder.name} on the arena")
-    if not suite_done(folder, suite, suite_attempts):
-        write_suite(evaluate_suite(folder, suite, attempts=suite_attempts), rundir.eval_dir(folder, suite))
+    if evaluated_suite(folder, suite, suite_attempts)[1]:
         echo(f"evaluated {folder.name} on suite {suite}")
-
-
-def suite_done(folder: Path, suite: str, attempts: int) -> bool:
-    """The point was evaluated on `suite` with `attempts` (as asked: a one-network method's
-    attempts per agent are `attempts` x robots, so that field alone would never match)."""
-    f = rundir.eval_dir(folder, suite) / "suite.json"
-    if not f.exists():
-        return False
-    s = json.loads(f.read_text())
-    return s.get("attempts", s.get("attempts_per_agent")) == attempts
 
 
 def families_of(t) -> list[str]:
