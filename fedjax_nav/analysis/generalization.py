@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
+from fedjax_nav.analysis.plots import probe_per_episode
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.training.sweep import Sweep
 
@@ -195,14 +196,10 @@ def probe_curves(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
         f = Path(points_dir) / p.id / rundir.METRICS
         if not f.exists() or not p.cfg.run.eval_every:
             continue
-        df = pd.read_csv(f)
-        per_seed = df.groupby(["episode", "seed"])[["eval_success", "reached_goal"]].mean()
-        per_seed = per_seed[per_seed["eval_success"].notna()]
-        g = per_seed.groupby("episode")
-        c = pd.DataFrame({"probe": g["eval_success"].mean(), "probe_seed_std": g["eval_success"].std(ddof=0)})
-        c["train"] = g["reached_goal"].mean()
-        c = c.reset_index().assign(point=p.id, label=p.label, method=p.cfg.method, rooms=rooms(p.cfg))
-        rows.append(c.assign(budget=p.cfg.run.episodes))
+        c = probe_per_episode(pd.read_csv(f)).reset_index()
+        rows.append(
+            c.assign(point=p.id, label=p.label, method=p.cfg.method, rooms=rooms(p.cfg), budget=p.cfg.run.episodes)
+        )
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
 
 

@@ -36,6 +36,16 @@ def curves(df: pd.DataFrame, metric: str, window: int = 10) -> tuple[np.ndarray,
     return table.index.to_numpy(), smooth.mean(1), smooth.std(1)
 
 
+def probe_per_episode(df: pd.DataFrame) -> pd.DataFrame:
+    """Per episode where the held-out probe ran (`run.eval_every`): its success (each seed's mean
+    over robots, then the mean over seeds), the std over seeds (ddof 0, as `curves`) and the
+    training success of that episode. Index: episode."""
+    pe = df.dropna(subset=["eval_success"]).groupby(["episode", "seed"])[["eval_success", "reached_goal"]].mean()
+    g = pe.groupby("episode")
+    probe, train = g["eval_success"], g["reached_goal"]
+    return pd.DataFrame({"probe": probe.mean(), "probe_seed_std": probe.std(ddof=0), "train": train.mean()})
+
+
 def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -> Path:
     """Success and reward curves (10-episode SMA, mean and spread over seeds).
 
@@ -64,12 +74,11 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
     for label, df in runs.items():  # run.eval_every: greedy success on the held-out probe, beside training success
         if "eval_success" in df and df["eval_success"].notna().any():
             probe = True
-            ev = df.dropna(subset=["eval_success"]).groupby(["seed", "episode"])["eval_success"].mean()
-            ev = ev.groupby("episode").agg(["mean", "std"]).fillna(0.0)
-            x = ev.index.to_numpy() + 1
+            ev = probe_per_episode(df)
+            x, mu, sd = ev.index.to_numpy() + 1, ev["probe"], ev["probe_seed_std"]
             name = f"{label + ': ' if label else ''}held-out probe (greedy)" if n == 1 else None
-            axes[0].plot(x, ev["mean"], "o--", ms=3, label=name, color=colors[label])
-            axes[0].fill_between(x, ev["mean"] - ev["std"], ev["mean"] + ev["std"], alpha=0.15, color=colors[label])
+            axes[0].plot(x, mu, "o--", ms=3, label=name, color=colors[label])
+            axes[0].fill_between(x, mu - sd, mu + sd, alpha=0.15, color=colors[label])
     if probe and n > 1:
         axes[0].set_title("solid: training; dashed, dots: held-out probe (greedy)", fontsize=8)
     if below:
