@@ -1,0 +1,103 @@
+"""The training programme bit for bit: a tiny run of every method (and of the robust federation,
+the attacks, procedural rooms with the probe and the robot model) hashed, metrics and final
+networks, against fingerprints recorded before a refactoring.
+
+A refactoring of the trainer, the aggregators or the env builder must leave every one of these
+hashes as it was. The hashes hold for one jax/XLA version on one kind of CPU: recorded with the
+versions in `tests/data/programme_fingerprints.json`; with other versions the test is skipped and
+says so. To record anew (only when a change is meant to change the numbers, and say so in the
+commit): `FEDJAX_NAV_RECORD_FINGERPRINTS=1 pytest -p no:xdist tests/test_programme_fingerprint.py`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fedjax_nav.config import load_config
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
+
+ROOT = Path(__file__).resolve().parents[1]
+FILE = Path(__file__).resolve().parent / "data" / "programme_fingerprints.json"
+RECORD = os.environ.get("FEDJAX_NAV_RECORD_FINGERPRINTS") == "1"
+TINY = [
+    "env.episode_length=16",
+    "run.chunk_episodes=2",
+    "run.episodes=2",
+    "ddpg.batch_size=8",
+    "ddpg.buffer_size=128",
+    "ddpg.hidden=16",
+    "run.checkpoint_every=0",
+    "fed.period=1",
+]
+METHODS = ("iddpg", "seddpg", "snddpg", "flddpg", "pwddpg", "rwddpg", "gsddpg", "flsddpg")
+CASES = {
+    **{m: (f"thesis/{m}.yaml", []) for m in METHODS},
+    "gsddpg-steps": ("thesis/gsddpg.yaml", ["fed.period_unit=steps", "fed.period=6"]),
+    "robust-attack": (
+        "thesis/flddpg.yaml",
+        ["fed.aggregator=norm_bounded", "fed.attack=scale", "fed.byzantine=1", "fed.participation=0.8"],
+    ),
+    "method-stale": ("thesis/pwddpg.yaml", ["fed.attack=stale", "fed.byzantine=1"]),
+    "procedural-probe-robot": (
+        "thesis/flddpg.yaml",
+        ["env.rooms=procedural", "run.eval_every=1", "robot.model=turtlebot3_burger"],
+    ),
+}
+
+
+def versions() -> dict:
+    import flax
+    import jaxlib
+
+    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "flax": flax.__version__, "machine": platform.machine()}
+
+
+def _bytes(x) -> bytes:
+    x = jax.random.key_data(x) if jax.dtypes.issubdtype(getattr(x, "dtype", np.float32), jax.dtypes.prng_key) else x
+    return np.ascontiguousarray(np.asarray(x)).tobytes()
+
+
+def fingerprint(case: str) -> str:
+    path, extra = CASES[case]
+    cfg = load_config(ROOT / "configs" / path, TINY + extra)
+    tr, hp = Trainer(cfg), hparams_from_config(cfg)
+    states = tr.init_seeds(jnp.arange(1), hp)
+    states, metrics = tr.compiled_chunk()(states, hp, jnp.int32(0))
+    h = hashlib.sha256()
+    for k in sorted(metrics):
+        h.update(k.encode() + _bytes(metrics[k]))
+    for leaf in jax.tree.leaves(states.agents) + jax.tree.leaves(states.buffers):
+        h.update(_bytes(leaf))
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    data = json.loads(FILE.read_text()) if FILE.exists() else {"versions": versions(), "cases": {}}
+    yield data
+    if RECORD:
+        FILE.parent.mkdir(exist_ok=True)
+        data["versions"] = versions()
+        FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_programme_is_bitwise_as_recorded(case, recorded):
+    got = fingerprint(case)
+    if RECORD:
+        recorded["cases"][case] = got
+        return
+    if recorded["versions"] != versions():
+        pytest.skip(f"fingerprints recorded with {recorded['versions']}, this is {versions()}")
+    assert case in recorded["cases"], f"no fingerprint recorded for {case!r} (see the module docstring)"
+    assert got == recorded["cases"][case], f"{case}: the programme's numbers changed"
