@@ -50,16 +50,18 @@ class EnvConfig:
     )
     episode_length: int = _f(1024, lo=1, hi=1_000_000, doc="T, steps per episode (static)")
     num_beams: int = _f(24, lo=1, hi=1024, doc="lidar beams (static)")
-    max_range: float = _f(3.5, lo=0.0, doc="m, lidar range (static)")
+    max_range: float = _f(3.5, lo=0.0, hi=1e4, doc="m, lidar range, at most 1e4 (static)")
     collision_test: str = _f("exact", choices=("exact", "lidar"), doc="exact distance or min(lidar) (static)")
-    dt: float = _f(0.1, lo=0.0, traced=True, doc="s per control step")
-    v_max: float = _f(0.25, lo=0.0, traced=True, doc="m/s")
-    omega_max: float = _f(1.0, lo=0.0, traced=True, doc="rad/s")
-    goal_radius: float = _f(0.5, lo=0.0, traced=True, doc="m, D_g")
-    collision_distance: float = _f(0.25, lo=0.0, traced=True, doc="m, D_c")
-    reward_goal: float = _f(100.0, traced=True, doc="R_g")
-    reward_collision: float = _f(-10.0, traced=True, doc="R_c")
-    progress_scale: float = _f(40.0, traced=True, doc="R_d = progress_scale * (d_prev - d)")
+    dt: float = _f(0.1, lo=0.0, hi=10.0, traced=True, doc="s per control step, at most 10")
+    v_max: float = _f(0.25, lo=0.0, hi=100.0, traced=True, doc="m/s, at most 100")
+    omega_max: float = _f(1.0, lo=0.0, hi=100.0, traced=True, doc="rad/s, at most 100")
+    goal_radius: float = _f(0.5, lo=0.0, hi=1e4, traced=True, doc="m, D_g, at most 1e4 (a world's bound)")
+    collision_distance: float = _f(0.25, lo=0.0, hi=1e4, traced=True, doc="m, D_c, at most 1e4 (a world's bound)")
+    reward_goal: float = _f(100.0, lo=-1e6, hi=1e6, traced=True, doc="R_g, within +-1e6")
+    reward_collision: float = _f(-10.0, lo=-1e6, hi=1e6, traced=True, doc="R_c, within +-1e6")
+    progress_scale: float = _f(
+        40.0, lo=-1e6, hi=1e6, traced=True, doc="R_d = progress_scale * (d_prev - d), within +-1e6"
+    )
     # Rooms the robots never saw (issue 15; docs/generalization.md). The defaults give today's runs.
     rooms: str = _f(
         "fixed",
@@ -112,8 +114,12 @@ class DDPGConfig:
     gamma: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="discount")
     rho: float = _f(1.0, lo=0.0, hi=1.0, traced=True, doc="target mix: targ <- (1-rho) targ + rho net")
     lr: float = _f(1e-3, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate (actor and critic)")
-    train_every: int = _f(5, lo=1, traced=True, doc="T_train: steps between gradient steps")
-    target_every: int = _f(5, lo=1, traced=True, doc="T_target: steps between target updates")
+    train_every: int = _f(
+        5, lo=1, hi=2**31 - 1, traced=True, doc="T_train: steps between gradient steps (an int32: < 2^31)"
+    )
+    target_every: int = _f(
+        5, lo=1, hi=2**31 - 1, traced=True, doc="T_target: steps between target updates (an int32: < 2^31)"
+    )
     epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
     epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
 
@@ -123,7 +129,9 @@ class FedConfig:
     tau: float = _f(0.5, lo=0.0, hi=1.0, traced=True, doc="soft mix: 0 = no sharing, 1 = hard FedAvg")
     beta: float = _f(0.5, lo=0.0, hi=100.0, traced=True, doc="PW/RW reward scale, GS global step")
     period_unit: str = _f("episodes", choices=("episodes", "steps"), doc="E_update or T_update (static)")
-    period: int = _f(2, lo=1, traced=True, doc="E_update (episodes) or T_update (steps)")
+    period: int = _f(
+        2, lo=1, hi=2**31 - 1, traced=True, doc="E_update (episodes) or T_update (steps) (an int32: < 2^31)"
+    )
     include_targets: bool = _f(False, doc="also average target networks (static)")
     # Robust federation (issue 14; docs/robustness.md). The defaults give today's runs bit for bit.
     participation: float = _f(
@@ -134,7 +142,11 @@ class FedConfig:
         doc="probability that a client takes part in a federated round (1 = every round)",
     )
     min_clients: int = _f(
-        1, lo=0, traced=True, doc="a round with fewer participants is skipped (and counted in fed_skipped)"
+        1,
+        lo=0,
+        hi=2**31 - 1,
+        traced=True,
+        doc="a round with fewer participants is skipped (and counted in fed_skipped) (an int32: < 2^31)",
     )
     aggregator: str = _f(
         "method",
@@ -142,15 +154,27 @@ class FedConfig:
         doc="the server's rule: 'method' = the method's own, or a robust center (static)",
     )
     trim: float = _f(0.2, lo=0.0, hi=0.5, traced=True, doc="trimmed_mean: fraction dropped at each end")
-    krum_f: int = _f(1, lo=0, traced=True, doc="krum: Byzantine clients tolerated, f (2f + 2 <= robots)")
-    krum_m: int = _f(1, lo=1, traced=True, doc="krum: clients averaged (1 = Krum, > 1 = Multi-Krum)")
+    krum_f: int = _f(
+        1, lo=0, hi=2**31 - 1, traced=True, doc="krum: Byzantine clients tolerated, f (2f + 2 <= robots; an int32)"
+    )
+    krum_m: int = _f(
+        1, lo=1, hi=2**31 - 1, traced=True, doc="krum: clients averaged (1 = Krum, > 1 = Multi-Krum; an int32)"
+    )
     max_norm: float = _f(
-        1.0, lo=0.0, traced=True, doc="norm_bounded: L2 bound of an update relative to the previous global model"
+        1.0,
+        lo=0.0,
+        hi=1e6,
+        traced=True,
+        doc="norm_bounded: L2 bound of an update relative to the previous global model, at most 1e6",
     )
     byzantine: int = _f(0, lo=0, doc="how many clients are Byzantine: the last ones (static)")
     attack: str = _f("none", choices=ATTACKS, doc="what Byzantine clients send (static; docs/robustness.md)")
     attack_scale: float = _f(
-        -10.0, traced=True, doc="scale attack: factor on the update; noise attack: std |attack_scale|"
+        -10.0,
+        lo=-1e6,
+        hi=1e6,
+        traced=True,
+        doc="scale attack: factor on the update; noise attack: std |attack_scale|; within +-1e6",
     )
 
 

@@ -10,7 +10,13 @@ from typing import Any
 import yaml
 
 from fedjax_nav.config import SECTIONS, Config, ConfigError
-from fedjax_nav.config.validate import from_dict
+from fedjax_nav.config.validate import from_dict, shorten, show
+
+# Bounds of what is read (docs/reliability.md, "Hostile inputs"): a config or sweep file is a few
+# KiB and a few hundred values (the largest shipped ones: 1.4 KiB, 75 values).
+MAX_FILE_BYTES = 2**20
+MAX_NODES = 100_000  # values once YAML aliases are expanded
+PATH_CHARS = 240  # a file name longer than this is cut in messages
 
 
 def to_dict(cfg: Config) -> dict:
@@ -21,83 +27,111 @@ def to_dict(cfg: Config) -> dict:
     return out
 
 
-def apply_overrides(data: dict, overrides: list[str], src: str = "--set") -> dict:
-    """Apply `section.key=value` strings (values parsed as YAML) to a config dict (a copy)."""
+def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: str | None = None) -> dict:
+    """Apply `section.key=value` strings (values parsed as YAML) to a config dict (a copy).
+
+    `src` names the overrides in errors about them; `base` names where `data` came from (its
+    file) in errors about `data` itself (not a mapping, a section that is not one): `src` if None."""
     import copy
 
+    base = src if base is None else base
+    if not isinstance(data, dict):
+        raise ConfigError(f"{base}: the config must be a mapping with keys method, env, ddpg, fed, run")
     data = copy.deepcopy(data)
     for item in overrides:
         if "=" not in item:
-            raise ConfigError(f"{src}: {item!r} is not of the form key=value (e.g. ddpg.gamma=0.99)")
+            raise ConfigError(f"{src}: {show(item)} is not of the form key=value (e.g. ddpg.gamma=0.99)")
         key, raw = item.split("=", 1)
-        value = parse_yaml(raw, f"{src} {key.strip()}")
-        parts = key.strip().split(".")
+        key = key.strip()
+        value = parse_yaml(raw, f"{src} {shorten(key)}")
+        parts = key.split(".")
         if parts == ["method"]:
             data["method"] = value
             continue
         if len(parts) != 2 or parts[0] not in SECTIONS:
-            raise ConfigError(f"{src}: unknown key {key!r} (use section.key with section in {', '.join(SECTIONS)})")
-        if not isinstance(data, dict):
-            raise ConfigError(f"{src}: the config must be a mapping with keys method, env, ddpg, fed, run")
-        data.setdefault(parts[0], {})
-        if data[parts[0]] is None:
+            raise ConfigError(f"{src}: unknown key {show(key)} (use section.key with section in {', '.join(SECTIONS)})")
+        if data.get(parts[0]) is None:
             data[parts[0]] = {}
         if not isinstance(data[parts[0]], dict):
-            raise ConfigError(f"{src}: '{parts[0]}' must be a mapping, got {type(data[parts[0]]).__name__}")
+            raise ConfigError(f"{base}: '{parts[0]}' must be a mapping, got {type(data[parts[0]]).__name__}")
         data[parts[0]][parts[1]] = value
     return data
 
 
-def read_yaml(path: str | Path, kind: str = "config") -> dict:
-    """A config (or sweep) file's mapping; `path` may also be a shipped name (`thesis/flddpg`)."""
+def overridden_keys(overrides: list[str]) -> set[str]:
+    """The dotted keys that `section.key=value` strings set ("method" included)."""
+    return {item.split("=", 1)[0].strip() for item in overrides if "=" in item}
+
+
+def locate(path: str | Path, kind: str = "config") -> Path:
+    """The file behind a path or shipped name of `kind` ("config" or "sweep"); a name that cannot
+    even be looked up (a NUL byte, longer than the system allows: an OSError of `Path.exists`)
+    or does not exist is one ConfigError, its name cut to PATH_CHARS."""
     from fedjax_nav.configs import names, resolve
 
     try:
-        path = resolve(path, kind)
-        exists = path.exists()
+        found = resolve(path, kind)
+        exists = found.exists()
     except (OSError, ValueError) as e:  # e.g. a NUL byte or an over-long name
-        raise ConfigError(f"{path}: cannot be read as a {kind} file ({type(e).__name__})") from None
+        why = getattr(e, "strerror", None) or type(e).__name__
+        raise ConfigError(f"{shorten(str(path), PATH_CHARS)}: cannot be read as a {kind} file ({why})") from None
     if not exists:
-        raise ConfigError(f"{path}: no such {kind} file (shipped {kind}s: {', '.join(names(kind))})")
-    return parse_yaml(read_text(path, kind), str(path)) or {}
+        raise ConfigError(
+            f"{shorten(str(found), PATH_CHARS)}: no such {kind} file (shipped {kind}s: {', '.join(names(kind))})"
+        )
+    return found
+
+
+def _input_files():
+    """`worlds.input_files`, the one reader of users' files: imported when first needed (the worlds
+    package imports jax; `import fedjax_nav.config` does not)."""
+    from fedjax_nav.worlds import input_files
+
+    return input_files
+
+
+def read_yaml(path: str | Path, kind: str = "config") -> Any:
+    """A config (or sweep) file's content (an empty file: {}); `path` may also be a shipped name
+    (`thesis/flddpg`). Bounded: a regular file of at most MAX_FILE_BYTES, at most MAX_NODES values."""
+    path = locate(path, kind)
+    data = parse_yaml(read_text(path, kind), str(path))
+    return {} if data is None else data
 
 
 def read_text(path: Path, kind: str = "config") -> str:
-    """A UTF-8 text file's content; any problem reading it is one ConfigError naming the file."""
+    """A UTF-8 text file's content (a regular file of at most MAX_FILE_BYTES); any problem
+    reading it is one ConfigError naming the file."""
+    input_files = _input_files()
     try:
-        return Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{path}: not UTF-8 text (byte {e.start}); a {kind} file must be UTF-8 YAML") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, not a {kind} file") from None
-    except OSError as e:  # permission denied, I/O errors, ...
-        raise ConfigError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
+        return input_files.read_text(path, kind, MAX_FILE_BYTES)
+    except input_files.InputError as e:
+        raise ConfigError(f"{shorten(str(path), PATH_CHARS)}: {e}") from None
 
 
 def parse_yaml(text: str, src: str) -> Any:
-    """yaml.safe_load; a parser error is one ConfigError line naming `src`, 'line L, column C: problem'."""
+    """YAML (safe, bounded: `input_files.load_yaml`); a problem is one ConfigError line naming
+    `src`, 'not valid YAML (line L, column C: problem)'. Refused: more than MAX_NODES values
+    once aliases are expanded, recursive aliases, a key given twice in one mapping."""
+    input_files = _input_files()
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = " ".join(f"{where}{getattr(e, 'problem', None) or getattr(e, 'context', None) or e}".split())
-        raise ConfigError(f"{src}: not valid YAML ({problem})") from None
-    except Exception as e:  # e.g. RecursionError on absurd nesting
-        raise ConfigError(f"{src}: not valid YAML ({type(e).__name__})") from None
+        return input_files.load_yaml(text, MAX_NODES)
+    except input_files.InputError as e:
+        raise ConfigError(f"{src}: {e}") from None
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
-    """The config of a file or shipped name (`thesis/flddpg`), with `section.key=value` overrides."""
-    from fedjax_nav.configs import resolve
+    """The config of a file or shipped name (`thesis/flddpg`), with `section.key=value` overrides.
 
-    path = resolve(path) if path else None
+    An error in a value given by `--set` names `--set` and the key (`--set: ddpg.gamma: ...`, or
+    `--set ddpg.gamma: not valid YAML ...`); one in the file names the file; a cross-field error
+    names the file "(with --set)"."""
+    path = locate(path, "config") if path else None
     data = read_yaml(path) if path else {}
     src = str(path) if path else "<defaults>"
-    if overrides:
-        data = apply_overrides(data, overrides)
-        src += " (with --set)"
-    return from_dict(data, src)
+    if not overrides:
+        return from_dict(data, src)
+    data = apply_overrides(data, overrides, base=src)
+    return from_dict(data, src, overridden=overridden_keys(overrides))
 
 
 def save_config(cfg: Config, path: str | Path) -> None:

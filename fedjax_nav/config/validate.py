@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Collection
 from dataclasses import fields
 from typing import Any
 
@@ -19,6 +20,29 @@ from fedjax_nav.config import (
 # ----------------------------------------------------------------------------- validation
 
 
+def shorten(text: str, limit: int = 80) -> str:
+    """`text`, or its first `limit` characters and how long it was (`worlds.input_files.shorten`)."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text):,} chars)"
+
+
+def show(value: Any, limit: int = 80) -> str:
+    """repr(value) for an error message, cut to `limit` characters (`worlds.input_files.show`;
+    repeated here because config does not import the worlds package, which imports jax)."""
+    try:
+        text = repr(value)
+    except ValueError:  # an int of more than 4300 digits has no repr
+        text = f"<an integer of about {int(value.bit_length() * 0.30103) + 1:,} digits>"
+    except RecursionError:
+        text = f"<a {type(value).__name__} nested too deeply to show>"
+    return shorten(text, limit)
+
+
+# The program's JAX values are int32 and float32 (training.hparams): a value beyond them would
+# overflow there, long after validation. Every int and float field is held to them.
+INT32 = (-(2**31), 2**31 - 1)
+FLOAT32_MAX = 3.4028234663852886e38
+
+
 def _coerce(value: Any, f: dataclasses.Field, where: str) -> Any:
     typ = (
         f.type
@@ -28,33 +52,48 @@ def _coerce(value: Any, f: dataclasses.Field, where: str) -> Any:
     meta = f.metadata
     if typ in (int, float) and isinstance(value, str):
         value = _number(value)  # YAML 1.1 reads 1e8 and 1.0e8 as strings
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
     if typ is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+            raise ConfigError(f"{where}: expected true or false, got {show(value)}")
     elif typ is int:
         if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {show(value)}")
         value = int(value)
+        lo, hi = max(INT32[0], -math.inf if lo is None else lo), min(INT32[1], math.inf if hi is None else hi)
     elif typ is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
+            raise ConfigError(f"{where}: expected a number, got {show(value)}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {show(value)}")
+        lo = -FLOAT32_MAX if lo is None else lo  # finite in float32, the program's precision
+        hi = FLOAT32_MAX if hi is None else hi
+        if not lo <= value <= hi:  # before float(): an int of 400 digits has no float
+            raise ConfigError(f"{where}: {show(value)} is out of range; allowed {_range(lo, hi)}")
         value = float(value)
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
     elif typ is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
+            raise ConfigError(f"{where}: expected a string, got {show(value)}")
     elif typ is tuple:
         if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
-            raise ConfigError(f"{where}: expected a non-empty list, got {value!r}")
+            raise ConfigError(f"{where}: expected a non-empty list, got {show(value)}")
         value = tuple(str(v) for v in value)
-    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
     if choices is not None and value not in choices:
-        raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}")
+        raise ConfigError(f"{where}: {show(value)} is not one of {', '.join(map(str, choices))}")
     if lo is not None and value < lo or hi is not None and value > hi:
-        rng = f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
-        raise ConfigError(f"{where}: {value!r} is out of range; allowed {rng}")
+        raise ConfigError(f"{where}: {show(value)} is out of range; allowed {_range(lo, hi)}")
     return value
+
+
+def _range(lo, hi) -> str:
+    def num(v):
+        if v == FLOAT32_MAX:
+            return "3.4e38 (float32)"
+        if v == -FLOAT32_MAX:
+            return "-3.4e38 (float32)"
+        return f"{v:.6g}" if isinstance(v, float) and abs(v) >= 1e6 else str(v)
+
+    return f"[{num(lo)}, {num(hi)}]"
 
 
 def _number(text: str) -> Any:
@@ -68,7 +107,7 @@ def _number(text: str) -> Any:
     return text
 
 
-def _build(cls, data: Any, src: str, prefix: str):
+def _build(cls, data: Any, src: str, prefix: str, where):
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -76,22 +115,36 @@ def _build(cls, data: Any, src: str, prefix: str):
     known = {f.name: f for f in fields(cls)}
     for k in data:
         if k not in known:
-            raise ConfigError(f"{src}: unknown key {f'{prefix}.{k}'!r} (allowed in '{prefix}': {', '.join(known)})")
-    return cls(**{k: _coerce(v, known[k], f"{src}: {prefix}.{k}") for k, v in data.items()})
+            dotted = f"{prefix}.{k}"
+            raise ConfigError(
+                f"{where(dotted)}: unknown key {show(dotted)} (allowed in '{prefix}': {', '.join(known)})"
+            )
+    return cls(**{k: _coerce(v, known[k], f"{where(f'{prefix}.{k}')}: {prefix}.{k}") for k, v in data.items()})
 
 
-def from_dict(data: dict, src: str = "<config>") -> Config:
+def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = ()) -> Config:
+    """A validated Config from a config mapping read from `src`.
+
+    `overridden`: the dotted keys given by `--set` (`io.load_config`); an error in one of their
+    values names `--set`, one in any other value names `src`, and a cross-field error names
+    `src (with --set)`."""
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: a config must be a mapping with keys method, env, ddpg, fed, run")
+    overridden = set(overridden)
+
+    def where(dotted: str) -> str:
+        return "--set" if dotted in overridden else src
+
     allowed = {"method", *SECTIONS}
     for k in data:
         if k not in allowed:
-            raise ConfigError(f"{src}: unknown key {str(k)!r} (allowed: {', '.join(sorted(allowed))})")
-    kwargs = {s: _build(cls, data.get(s), src, s) for s, cls in SECTIONS.items()}
+            raise ConfigError(f"{src}: unknown key {show(str(k))} (allowed: {', '.join(sorted(allowed))})")
+    kwargs = {s: _build(cls, data.get(s), src, s, where) for s, cls in SECTIONS.items()}
     if "method" in data:
-        kwargs["method"] = _coerce(data["method"], {f.name: f for f in fields(Config)}["method"], f"{src}: method")
+        method_field = {f.name: f for f in fields(Config)}["method"]
+        kwargs["method"] = _coerce(data["method"], method_field, f"{where('method')}: method")
     cfg = Config(**kwargs)
-    check(cfg, src)
+    check(cfg, f"{src} (with --set)" if overridden else src)
     return cfg
 
 
@@ -145,9 +198,14 @@ def _check_rooms(cfg: Config, src: str) -> None:
     if e.rooms != "procedural" and (e.room_curriculum_episodes or e.room_density_start != 1.0):
         field = "room_curriculum_episodes" if e.room_curriculum_episodes else "room_density_start"
         raise ConfigError(f"{src}: env.{field} thins procedural rooms; it needs env.rooms = procedural")
+    if e.rooms != "procedural" and e.room_spec.strip():
+        raise ConfigError(
+            f"{src}: env.room_spec ({show(e.room_spec)}) shapes procedural rooms; it needs env.rooms = procedural "
+            f"(env.rooms is {e.rooms!r})"
+        )
     bad = [f for f in fams if f not in ROOM_FAMILIES]
     if bad:
-        raise ConfigError(f"{src}: env.room_families: {bad[0]!r} is not one of {', '.join(ROOM_FAMILIES)}")
+        raise ConfigError(f"{src}: env.room_families: {show(bad[0])} is not one of {', '.join(ROOM_FAMILIES)}")
     if len(fams) not in (1, n):
         raise ConfigError(
             f"{src}: env.room_families has {len(fams)} entries; allowed: 1 (every robot) or one per "

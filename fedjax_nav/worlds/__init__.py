@@ -16,7 +16,6 @@ different sizes `stack` into one pytree and run in one `vmap`.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from importlib import resources
@@ -26,6 +25,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from fedjax_nav.worlds import input_files
+from fedjax_nav.worlds.input_files import shorten, show
+
 SHIPPED = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5", "eval")
 THESIS_TRAIN = ("train-0", "train-2", "train-3", "train-4", "train-5")  # thesis dropped room 1
 PAPER_TRAIN = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5")
@@ -33,6 +35,13 @@ PAPER_TRAIN = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5")
 CLEARANCE = 0.25
 # Upper bound on the rows of each field of a world file (boxes, segments, circles, starts, goals).
 MAX_PRIMITIVES = 5000
+# Every number of a world file (m, or rad for an angle) within +-MAX_COORD: a world is float32 in
+# the program, where 1e4 still resolves millimetres (and 1e39 is inf, 1e20 squared is too).
+MAX_COORD = 1e4
+# A world file is read only when it is a regular file of at most this many bytes and, in YAML, at
+# most this many values (5 fields x 5000 rows x 6 fit); the largest shipped one is 3 KiB.
+MAX_FILE_BYTES = 8 * 2**20
+MAX_NODES = 200_000
 
 
 class WorldError(ValueError):
@@ -99,9 +108,23 @@ def _array(spec: dict, field: str, ncol: int, src: str, required: bool) -> np.nd
         raise WorldError(
             f"{src}: field '{field}' has {len(arr)} rows; at most {MAX_PRIMITIVES} are allowed per world file"
         )
-    if not np.all(np.isfinite(arr)):
-        raise WorldError(f"{src}: field '{field}' holds a non-finite number")
+    _check_numbers(arr, field, src)
     return arr
+
+
+def _check_numbers(arr: np.ndarray, field: str, src: str) -> None:
+    """Finite and within +-MAX_COORD (so also finite in float32), else one WorldError naming the row."""
+    bad = ~np.isfinite(arr) | (np.abs(np.nan_to_num(arr)) > MAX_COORD)
+    if np.any(bad):
+        row = int(np.argwhere(bad)[0][0]) if arr.ndim == 2 else None
+        shown = arr[row] if row is not None else arr
+        at = f"{field}[{row}]" if row is not None else field
+        what = "a non-finite number" if not np.all(np.isfinite(shown)) else f"a number beyond +-{MAX_COORD:g}"
+        value = shown.tolist()
+        raise WorldError(
+            f"{src}: field '{field}' holds {what} ({at} = {show(value)}); allowed: finite, |value| <= "
+            f"{MAX_COORD:g} (m, or rad for an angle)"
+        )
 
 
 def point_segment_distance_np(p: np.ndarray, seg: np.ndarray) -> np.ndarray:
@@ -138,7 +161,11 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
     except (TypeError, ValueError, OverflowError, RecursionError):
         raise WorldError(f"{src}: field 'size' must be [width, height] in m") from None
     if size.shape != (2,) or not np.all(size > 0) or not np.all(np.isfinite(size)):
-        raise WorldError(f"{src}: field 'size' must be [width, height] with both > 0, got {spec['size']!r}")
+        raise WorldError(f"{src}: field 'size' must be [width, height] with both > 0, got {show(spec['size'])}")
+    _check_numbers(size, "size", src)
+    for field in ("name", "description"):
+        if field in spec and not isinstance(spec[field], str):
+            raise WorldError(f"{src}: field '{field}' must be a string, got {show(spec[field])}")
     boxes = _array(spec, "boxes", 5, src, False)
     segs = _array(spec, "segments", 4, src, False)
     circles = _array(spec, "circles", 3, src, False)
@@ -201,33 +228,16 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
 
 
 def _read(path: Path) -> dict:
-    """A world file's content; any problem reading or parsing it is one WorldError line."""
+    """A world file's content; any problem reading or parsing it is one WorldError line. Bounded
+    (`input_files`): a regular file of at most MAX_FILE_BYTES, at most MAX_NODES YAML
+    values once aliases are expanded, no key given twice."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise WorldError(f"{path}: not UTF-8 text (byte {e.start}); a world file is JSON or YAML") from None
-    except IsADirectoryError:
-        raise WorldError(f"{path}: is a directory, not a world file") from None
-    except OSError as e:  # permission denied, I/O errors, ...
-        raise WorldError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
-    if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
-
-        try:
-            return yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-            problem = " ".join((where + str(getattr(e, "problem", "") or type(e).__name__)).split())
-            raise WorldError(f"{path}: not valid YAML ({problem})") from None
-        except Exception as e:  # e.g. RecursionError on absurd nesting
-            raise WorldError(f"{path}: not valid YAML ({type(e).__name__})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise WorldError(f"{path}: not valid JSON ({e})") from None
-    except Exception as e:  # e.g. RecursionError on absurd nesting
-        raise WorldError(f"{path}: not valid JSON ({type(e).__name__})") from None
+        text = input_files.read_text(path, "world", MAX_FILE_BYTES, formats="JSON or YAML")
+        if path.suffix.lower() in (".yaml", ".yml"):
+            return input_files.load_yaml(text, MAX_NODES)
+        return input_files.load_json(text)
+    except input_files.InputError as e:
+        raise WorldError(f"{path}: {e}") from None
 
 
 def resolve(name_or_path: str | Path) -> Path:
@@ -239,9 +249,12 @@ def resolve(name_or_path: str | Path) -> Path:
     try:
         exists = path.exists()
     except (OSError, ValueError) as e:  # e.g. a NUL byte or an over-long name
-        raise WorldError(f"{name!r}: cannot be read as a world file ({type(e).__name__})") from None
+        why = getattr(e, "strerror", None) or type(e).__name__
+        raise WorldError(f"{show(name, 240)}: cannot be read as a world file ({why})") from None
     if not exists:
-        raise WorldError(f"{name}: no such world file, and not a shipped world (shipped: {', '.join(SHIPPED)})")
+        raise WorldError(
+            f"{shorten(name, 240)}: no such world file, and not a shipped world (shipped: {', '.join(SHIPPED)})"
+        )
     return path
 
 

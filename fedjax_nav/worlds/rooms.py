@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from fedjax_nav.worlds import CLEARANCE, WorldError
+from fedjax_nav.worlds.input_files import shorten, show
 
 FAMILIES = ("cylinders", "boxes", "walls", "mixture")
 # Which obstacle kinds each family draws.
@@ -146,12 +147,12 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
         is_int = isinstance(v, (int, np.integer)) and not isinstance(v, bool)
         kind = "an integer" if name in _INT_FIELDS else "a number"
         ok_type = is_int if name in _INT_FIELDS else (is_int or isinstance(v, (float, np.floating)))
-        if not ok_type or not math.isfinite(float(v)):
+        if not ok_type or not (is_int or math.isfinite(v)):  # float() of a 400-digit int overflows
             raise WorldError(
-                f"RoomSpec field '{name}' = {v!r} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
+                f"RoomSpec field '{name}' = {show(v)} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
             )
         if not lo <= v <= hi:
-            raise WorldError(f"RoomSpec field '{name}' = {v!r} is outside the allowed range [{lo}, {hi}] ({doc})")
+            raise WorldError(f"RoomSpec field '{name}' = {show(v)} is outside the allowed range [{lo}, {hi}] ({doc})")
     for base in (
         "width",
         "height",
@@ -192,7 +193,7 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
         v = getattr(spec, name)
         if v is not None and v < n:
             raise WorldError(
-                f"RoomSpec field '{name}' = {v!r} is outside the allowed range [{n}, "
+                f"RoomSpec field '{name}' = {show(v)} is outside the allowed range [{n}, "
                 f"{ranges[name][2]}] for this spec (None: {n})"
             )
     return spec
@@ -213,13 +214,12 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
-            raise WorldError(f"--set {item!r}: expected field=value, e.g. cylinders_max=4")
+            raise WorldError(f"--set {show(item)}: expected field=value, e.g. cylinders_max=4")
         if name == "family":
             raise WorldError("--set family=...: give the family with --family")
         if name not in SPEC_FIELDS:
-            raise WorldError(
-                f"unknown RoomSpec field '{name}' (allowed: {', '.join(f for f in SPEC_FIELDS if f != 'family')})"
-            )
+            allowed = ", ".join(f for f in SPEC_FIELDS if f != "family")
+            raise WorldError(f"unknown RoomSpec field '{shorten(name)}' (allowed: {allowed})")
         _, lo, hi, doc = field_ranges()[name]
         if name in _OPTIONAL_FIELDS and text.lower() in ("none", "auto", "null"):
             out[name] = None
@@ -229,6 +229,6 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         except ValueError:
             kind = "an integer" if name in _INT_FIELDS else "a number"
             raise WorldError(
-                f"RoomSpec field '{name}' = {text!r} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
+                f"RoomSpec field '{name}' = {show(text)} must be {kind} in the allowed range [{lo}, {hi}] ({doc})"
             ) from None
     return out
