@@ -1,5 +1,5 @@
 """The thesis's methods as data (docs/decisions.md, "Methods"): how many networks and buffers,
-which aggregator (a name in `fedjax_nav.federated.aggregators.AGGREGATORS`), which starts. The
+which aggregator (a name in `fedjax_nav.federated.aggregators.RULES`), which starts. The
 trainer reads these flags; there are no subclasses. The config's `method` choices are this
 table's keys."""
 

@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav.config import load_config
-from fedjax_nav.training.trainer import Trainer, hparams_from_config
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
 
 
 def main() -> None:

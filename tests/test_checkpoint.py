@@ -32,8 +32,9 @@ from fedjax_nav import cli
 from fedjax_nav.config import load_config
 from fedjax_nav.rundir import atomic_write
 from fedjax_nav.training.checkpoint import Checkpointer, CheckpointError
+from fedjax_nav.training.hparams import hparams_from_config
 from fedjax_nav.training.run import DivergenceError, train
-from fedjax_nav.training.trainer import Trainer, hparams_from_config
+from fedjax_nav.training.trainer import Trainer
 
 EPISODES = 16
 SEEDS = 2

@@ -190,7 +190,8 @@ def test_one_compilation_for_every_setting_of_the_same_shapes():
     from fedjax_nav.evaluation import rollout
 
     run(seed=5)
-    program = rollout._program((24, 3.5, T, "exact"), scripted, 64)
+    settings = dict(num_beams=24, max_range=3.5, collision_test="exact", episode_length=T, mode="eval", noise=True)
+    program = rollout.eval_program(settings, scripted, 64)
     before = program._cache_size()
     run(STILL, FACING_WALL, seed=6, range_noise=0.3, action_noise=0.2)  # other world data, noise, params
     assert program._cache_size() == before == 1
@@ -476,13 +477,46 @@ def test_byzantine_robots_are_summarized_apart(tiny_run, tmp_path, capsys):
     assert "honest_agents" not in evaluate_run(run_dir, world=world_file, attempts=1, max_steps=16).summary
 
 
+def test_arena_and_suite_evaluations_drive_the_runs_robot_model(tiny_run, tmp_path, monkeypatch):
+    """Both evaluations build the simulator from the run's config (config.envs): a run trained
+    under the TurtleBot3 model is evaluated under it on the arena and on a held-out suite alike
+    (the suite used to drive the ideal robot whatever the run's `robot:` said)."""
+    from fedjax_nav.evaluation import evaluate_run, rollout, suite
+    from fedjax_nav.robots import ROBOT_MODELS
+
+    run_dir, world_file = tiny_run
+    dest = tmp_path / "burger"
+    dest.mkdir()
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    cfg["robot"] = {"model": "turtlebot3_burger"}
+    (dest / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (dest / "params.npz").write_bytes((run_dir / "params.npz").read_bytes())
+    seen, real = [], rollout.eval_program
+
+    def spy(settings, policy, chunk):
+        seen.append(dict(settings))
+        return real(settings, policy, chunk)
+
+    monkeypatch.setattr(suite, "eval_program", spy)
+    monkeypatch.setattr(rollout, "eval_program", spy)
+    burger = ROBOT_MODELS["turtlebot3_burger"]
+    arena = evaluate_run(dest, world=world_file, attempts=1, max_steps=8)
+    held = suite.evaluate_suite(dest, "probe", attempts=1, max_steps=8)
+    assert len(seen) == 2
+    for s in seen:
+        assert s["robot"] and s["noise"] and s["mode"] == "eval" and s["episode_length"] == 8
+        assert (s["substeps"], s["scan_samples"]) == (burger["substeps"], burger["scan_samples"])
+    assert seen[0] == seen[1]
+    assert arena.summary["noise"]["range_noise"] == held["summary"]["noise"]["range_noise"] == burger["range_noise"]
+
+
 def test_robustness_report_evaluates_points_and_notes_a_diverged_one(tiny_run, tmp_path):
     """The robustness report evaluates every finished point on a world and reports, instead of
     failing on, a point whose actors hold NaN (a run diverged under attack)."""
     import shutil
 
+    from fedjax_nav.config.sweepfile import load_sweep
     from fedjax_nav.experiments.robustness import evaluate_arena
-    from fedjax_nav.training.sweep import load_sweep
 
     run_dir, _ = tiny_run
     spec = {"name": "r", "base": str(run_dir / "config.yaml"), "seeds": 2, "grid": {"ddpg.lr": [0.001, 0.002]}}

@@ -48,10 +48,12 @@ R = jnp.array([0.5, -1.0, 2.0, 0.25], jnp.float32)
 
 
 def aggregate(kind, params, r, tau, beta, state=None, mask=None):
-    """One `update` of the named aggregator (state: its own init when None)."""
-    a = agg.make(kind)
+    """One `update` of the named aggregator with the hyperparameters it takes (state: its own
+    init when None)."""
+    given = {"tau": tau, "beta": beta}
+    a = agg.make(kind, **{h: given[h] for h in agg.RULES[kind].hparams})
     state = a.init(params) if state is None else state
-    return a.update(params, r, state, {"fed.tau": tau, "fed.beta": beta}, mask)
+    return a.update(params, r, state, mask)
 
 
 # ----------------------------------------------------------------------------- soft FedAvg
@@ -147,7 +149,7 @@ def test_real_weighting_all_zero_rewards_falls_back_to_the_mean():
 
 def test_init_global_is_the_mean_of_the_initial_params():
     p = random_params(8)
-    g = agg.init_global(p)
+    g = agg.global_soft(jnp.float32(0.5)).init(p).theta_w
     assert jax.tree.structure(g) == jax.tree.structure(p)
     for a, b in zip(jax.tree.leaves(g), np_leaves(p)):
         np.testing.assert_allclose(np.asarray(a), b.mean(0), rtol=1e-6, atol=1e-7)
@@ -158,7 +160,7 @@ def test_global_soft_first_and_second_step_against_numpy(beta):
     p0 = random_params(9)  # the initial params
     p1 = random_params(10)  # after some local training
     p2 = random_params(11)
-    prev = agg.init_global(p0)  # Decision: theta_w_prev starts as the mean of the initial params
+    prev = agg.global_soft(jnp.float32(0.5)).init(p0)  # Decision: theta_w_prev starts as the mean of the initial params
     out1, tw1 = aggregate("gs", p1, R, jnp.float32(0.5), jnp.float32(beta), prev)
     ref1 = [(1 - beta) * a.mean(0) + beta * b.mean(0) for a, b in zip(np_leaves(p0), np_leaves(p1))]
     assert_leaves_close(tw1, ref1)
@@ -170,7 +172,7 @@ def test_global_soft_first_and_second_step_against_numpy(beta):
 
 
 def test_global_soft_ignores_tau_and_rewards():
-    p, prev = random_params(12), agg.init_global(random_params(13))
+    p, prev = random_params(12), agg.global_soft(jnp.float32(0.5)).init(random_params(13))
     a, ta = aggregate("gs", p, R, jnp.float32(0.0), jnp.float32(0.5), prev)
     b, tb = aggregate("gs", p, -R, jnp.float32(1.0), jnp.float32(0.5), prev)
     for x, y in zip(jax.tree.leaves((a, ta)), jax.tree.leaves((b, tb))):
@@ -182,10 +184,12 @@ def test_global_soft_ignores_tau_and_rewards():
 
 def test_aggregate_none_and_unknown():
     p = random_params(14)
-    out, tw = aggregate("none", p, R, jnp.float32(1.0), jnp.float32(1.0), {"x": 1})
-    assert out is p and tw == {"x": 1}
+    out, st = aggregate("none", p, R, jnp.float32(1.0), jnp.float32(1.0))
+    assert out is p and st == agg.EmptyState()
     with pytest.raises(ValueError, match="unknown aggregator 'nonsense'"):
         agg.make("nonsense")
+    with pytest.raises(TypeError, match="takes"):  # a rule's hyperparameters are exactly its own
+        agg.make("soft", tau=0.5, beta=1.0)
 
 
 @pytest.mark.parametrize("kind", ["soft", "pw", "rw", "gs"])
@@ -193,7 +197,8 @@ def test_absent_clients_keep_their_params_and_do_not_count(kind):
     """A client outside the participation mask neither sends nor receives."""
     p = random_params(16)
     mask = jnp.array([True, False, True, True])
-    state = agg.make(kind).init(random_params(17))  # GS: a global model from elsewhere
+    rule = agg.RULES[kind]
+    state = rule.make(**{h: 0.5 for h in rule.hparams}).init(random_params(17))  # GS: a global model from elsewhere
     out, _ = aggregate(kind, p, R, jnp.float32(0.5), jnp.float32(0.5), state, mask)
     for g, x in zip(jax.tree.leaves(out), jax.tree.leaves(p)):
         np.testing.assert_array_equal(np.asarray(g)[1], np.asarray(x)[1])
@@ -227,7 +232,7 @@ def test_methods_table_is_the_one_source_of_names():
 
     assert METHODS == tuple(methods.METHODS)
     for m in methods.METHODS.values():
-        assert m.aggregator in agg.AGGREGATORS, m.name
+        assert m.aggregator in agg.RULES, m.name
         assert m.sends_rewards == (m.aggregator in ("pw", "rw")), m.name  # Table 3: PW/RW send r_k
     assert methods.get("FLDDPG") is methods.METHODS["flddpg"]
     with pytest.raises(ValueError, match="unknown method"):

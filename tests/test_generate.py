@@ -137,7 +137,7 @@ def batches():
 
 def test_same_key_same_room_and_keys_differ(batches):
     spec, world, _ = batches["cylinders"]
-    f = gen._jitted(spec)  # the jitted one-room generator (shared with generate_to_file)
+    f = gen.jitted_generator(spec)  # the jitted one-room generator (shared with generate_to_file)
     key = gen.train_room_key(3)
     a, b = f(key), f(key)
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):

@@ -59,7 +59,12 @@ def versions() -> dict:
     import flax
     import jaxlib
 
-    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "flax": flax.__version__, "machine": platform.machine()}
+    return {
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "flax": flax.__version__,
+        "machine": platform.machine(),
+    }
 
 
 def _bytes(x) -> bytes:

@@ -28,8 +28,8 @@ import yaml
 
 from fedjax_nav import cli, config, rundir
 from fedjax_nav.config import ConfigError, load_config
+from fedjax_nav.training.hparams import hparams_from_config
 from fedjax_nav.training.run import DivergenceError, train
-from fedjax_nav.training.trainer import hparams_from_config
 
 ROBOTS = 2
 TINY = {

@@ -277,12 +277,27 @@ def test_the_trainer_builds_the_ideal_env_by_default_and_the_model_on_request():
     assert tr.env.robot and tr.env.noise and (tr.env.substeps, tr.env.max_delay, tr.env.scan_samples) == (3, 2, 360)
 
 
+def test_the_probe_drives_the_runs_robot_model_without_noise():
+    """The periodic held-out probe builds its env from the run's config like the trainer does
+    (config.envs): the TurtleBot3 run is probed under the TurtleBot3 model, noiseless; it used
+    to probe the ideal robot whatever `robot:` said."""
+    from fedjax_nav.training.trainer import Trainer
+
+    tr = Trainer(load_config(None, ["robot.model=turtlebot3_burger", "run.eval_every=5"]))
+    p = tr.probe.env
+    assert p.robot and not p.noise and p.mode == "eval"
+    assert (p.substeps, p.max_delay, p.scan_samples) == (tr.env.substeps, tr.env.max_delay, tr.env.scan_samples)
+    ideal = Trainer(load_config(None, ["run.eval_every=5"])).probe.env
+    assert not ideal.robot and not ideal.noise
+
+
 @pytest.mark.slow
 def test_a_sweep_over_a_traced_robot_field_compiles_once(tmp_path):
     """robot.* fields marked traced are HParams: one group, one trace, the value reaches the env."""
     import pandas as pd
     import yaml
 
+    from fedjax_nav.config.sweepfile import load_sweep
     from fedjax_nav.experiments.sweeps import run_sweep
     from fedjax_nav.training import sweep as sw
 
@@ -308,7 +323,7 @@ def test_a_sweep_over_a_traced_robot_field_compiles_once(tmp_path):
     }
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
-    sweep = sw.load_sweep(path)
+    sweep = load_sweep(path)
     assert len(sw.plan(sw.merge_jobs(sweep.points), budget=2**40)) == 1
     _, stats = run_sweep(sweep, tmp_path / "out", progress=False, echo=lambda s: None)
     assert [g["traces"] for g in stats["groups"]] == [1]

@@ -1,4 +1,4 @@
-"""Robust federation (issue 14): the center functions of `federated.robust` against independent
+"""Robust federation (docs/robustness.md): the center functions of `federated.robust` against independent
 float64 numpy references (plain loops, np.median, np.sort) on random stacked pytrees and random
 participation masks, their traced hyperparameters (one compilation for every value), vmap over
 seeds, robustness to an outlier, and the Byzantine attacks of `federated.attacks`."""
@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fedjax_nav.federated import attacks, robust
+from fedjax_nav.federated import aggregators, attacks, robust
 
 KS = (1, 3, 5, 6, 8)
 OUTLIER = 1e30  # what non-participating rows hold (with some inf and NaN too): must be ignored
@@ -540,10 +540,10 @@ def test_errors_name_the_problem():
         robust.masked_mean(p, jnp.ones(4, bool))
     with pytest.raises(ValueError, match="iters"):
         robust.geometric_median(p, jnp.ones(3, bool), iters=2.5)
-    with pytest.raises(ValueError, match="unknown center"):
-        robust.center("average", p, jnp.ones(3, bool))
-    with pytest.raises(ValueError, match="needs reference"):
-        robust.center("norm_bounded", p, jnp.ones(3, bool))
+    with pytest.raises(ValueError, match="unknown robust center 'average'"):
+        aggregators.robust_rule("average", tau=1.0)
+    with pytest.raises(ValueError, match="reference must have the structure"):
+        robust.norm_bounded_mean(p, jnp.ones(3, bool), None, 1.0)
     with pytest.raises(ValueError, match="unknown attack"):
         attacks.apply_attack("flip", p, jnp.zeros(3, bool), jax.random.key(0), 1.0, None)
     with pytest.raises(ValueError, match="needs reference"):
@@ -564,9 +564,8 @@ def test_center_dispatch():
         "norm_bounded": ref_norm_bounded(p, mask, ref, 0.7),
     }
     assert set(cases) == set(robust.CENTERS)
-    center = jax.jit(robust.center, static_argnames=("kind", "iters"))
+    hp = {"trim": jnp.float32(0.3), "krum_f": jnp.int32(1), "krum_m": jnp.int32(2), "max_norm": jnp.float32(0.7)}
     for kind, want in cases.items():
-        got = center(
-            kind, p, jnp.asarray(mask), trim=jnp.float32(0.3), f=1, m=2, reference=ref, max_norm=jnp.float32(0.7)
-        )
+        c = robust.CENTERS[kind]
+        got = jax.jit(c.fn)(p, jnp.asarray(mask), ref, *[hp[h] for h in c.hparams])
         assert_close(got, want, rtol=2e-5, atol=2e-6)

@@ -1,4 +1,4 @@
-"""Federation that survives real fleets (issue 14), end to end in the trainer: the robust
+"""Federation that survives real fleets (docs/robustness.md), end to end in the trainer: the robust
 aggregators as `Aggregator`s against float64 numpy references (masks and the soft mix tau), the
 participation mask (rate, skipped rounds, bitwise today's round at participation 1), the
 Byzantine attacks on what is sent, honest-client metrics, one compilation for a sweep over the
@@ -21,7 +21,10 @@ from fedjax_nav import cli, config
 from fedjax_nav.config import load_config
 from fedjax_nav.federated import aggregators as agg
 from fedjax_nav.federated import attacks, robust
-from fedjax_nav.training.trainer import FED_STREAM, Trainer, hparams_from_config
+from fedjax_nav.training import federation
+from fedjax_nav.training.federation import FED_STREAM
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 FLDDPG = ROOT / "configs" / "thesis" / "flddpg.yaml"
@@ -54,7 +57,7 @@ def hp_for(**kw):
 
 def test_config_choices_are_the_federated_tables():
     assert config.ROBUST_AGGREGATORS == ("method", *agg.ROBUST)
-    assert set(agg.ROBUST) == set(robust.CENTERS) and all(n in agg.AGGREGATORS for n in agg.ROBUST)
+    assert set(agg.ROBUST) == set(robust.CENTERS) and all(agg.RULES[n].keeps_reference for n in agg.ROBUST)
     assert config.ATTACKS == attacks.ATTACKS
 
 
@@ -81,8 +84,12 @@ def test_robust_aggregators_against_numpy_with_masks_and_tau(name):
     theta_k <- (1 - tau) theta_k + tau theta_w, absent clients unchanged (even if they hold inf
     or NaN), and the new state's reference is theta_w."""
     rng = np.random.default_rng(14)
-    a = agg.make(name)
-    update = jax.jit(a.update)
+    rule = agg.RULES[name]
+
+    @jax.jit
+    def update(params, rewards, state, hp, mask):  # the rule built from traced hyperparameters
+        return rule.make(**{h: hp[f"fed.{h}"] for h in rule.hparams}).update(params, rewards, state, mask)
+
     for k in (5, 6):
         for mask in R.masks_for(k, rng):
             for tau, extra in [
@@ -91,10 +98,10 @@ def test_robust_aggregators_against_numpy_with_masks_and_tau(name):
             ]:
                 params = R.poison_absent(R.random_params(rng, k), mask)
                 hp = hp_for(tau=tau, **extra)
-                state = {"reference": R.random_reference(rng)}
+                state = agg.ReferenceState(R.random_reference(rng))
                 new, st = update(params, jnp.zeros(k), state, hp, jnp.asarray(mask))
-                theta_w = _reference_center(name, params, mask, state["reference"], hp)
-                R.assert_close(st["reference"], theta_w, rtol=1e-4, atol=1e-5)
+                theta_w = _reference_center(name, params, mask, state.reference, hp)
+                R.assert_close(st.reference, theta_w, rtol=1e-4, atol=1e-5)
                 for got, p, w in zip(jax.tree.leaves(new), R.leaves64(params), theta_w):
                     got = np.asarray(got, np.float64)
                     np.testing.assert_array_equal(got[~mask], np.asarray(p, np.float32)[~mask].astype(np.float64))
@@ -105,16 +112,16 @@ def test_robust_aggregators_against_numpy_with_masks_and_tau(name):
 def test_robust_rule_starts_from_the_mean_and_with_reference_tracks_the_global_model():
     rng = np.random.default_rng(0)
     params = R.random_params(rng, 5)
-    st = agg.make("norm_bounded").init(params)
-    R.assert_close(st["reference"], [x.mean(0) for x in R.leaves64(params)])
-    soft, wrapped = agg.make("soft"), agg.with_reference(agg.make("soft"))
+    st = agg.make("norm_bounded", tau=0.5, max_norm=1.0).init(params)
+    R.assert_close(st.reference, [x.mean(0) for x in R.leaves64(params)])
+    soft = agg.make("soft", tau=jnp.float32(0.5))
+    wrapped = agg.with_reference(soft)
     mask = jnp.asarray([True, False, True, True, False])
-    hp = hp_for(tau=0.5)
-    want, _ = soft.update(params, jnp.zeros(5), {}, hp, mask)
-    got, st = wrapped.update(params, jnp.zeros(5), wrapped.init(params), hp, mask)
+    want, _ = soft.update(params, jnp.zeros(5), soft.init(params), mask)
+    got, st = wrapped.update(params, jnp.zeros(5), wrapped.init(params), mask)
     assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(got), jax.tree.leaves(want)))
     # soft FedAvg's mix keeps the participants' mean: the reference is theta_w
-    R.assert_close(st["reference"], R.ref_masked_mean(params, np.asarray(mask)), rtol=1e-5, atol=1e-6)
+    R.assert_close(st.reference, R.ref_masked_mean(params, np.asarray(mask)), rtol=1e-5, atol=1e-6)
 
 
 # ----------------------------------------------------------------------------- participation
@@ -148,11 +155,11 @@ def _rounds(tr, hp, st, n):
 
 def test_participation_mask_rate(fed_states):
     tr, hp, _ = fed_states("fed.participation=0.3")
-    draws = jax.vmap(lambda k: tr.participation(k, hp))(jax.random.split(jax.random.key(0), 4000))
+    draws = jax.vmap(lambda k: federation.participation(tr, k, hp))(jax.random.split(jax.random.key(0), 4000))
     assert draws.shape == (4000, 5) and abs(float(draws.mean()) - 0.3) < 0.02
     assert np.allclose(np.asarray(draws).mean(0), 0.3, atol=0.04)  # every client alike
     for p, want in [(1.0, True), (0.0, False)]:
-        d = jax.vmap(lambda k, p=p: tr.participation(k, hp | {"fed.participation": jnp.float32(p)}))(
+        d = jax.vmap(lambda k, p=p: federation.participation(tr, k, hp | {"fed.participation": jnp.float32(p)}))(
             jax.random.split(jax.random.key(1), 500)
         )
         assert np.all(np.asarray(d) == want)
@@ -164,7 +171,7 @@ def test_absent_clients_keep_their_model_and_small_rounds_are_skipped(fed_states
     part_keys = jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, FED_STREAM))[0])(
         jax.random.split(jax.random.key(7), 64)
     )
-    masks = jax.vmap(lambda k: tr.participation(k, hp))(part_keys)
+    masks = jax.vmap(lambda k: federation.participation(tr, k, hp))(part_keys)
     n = np.asarray(masks).sum(1)
     held = n >= 3
     assert held.any() and (~held).any()
@@ -183,13 +190,13 @@ def test_absent_clients_keep_their_model_and_small_rounds_are_skipped(fed_states
 
 
 def test_participation_one_is_todays_round_bit_for_bit(fed_states):
-    """The round before issue 14: every client, the method's aggregator, no draws."""
+    """The round before partial participation existed: every client, the method's aggregator, no draws."""
     for base in (FLDDPG, ROOT / "configs" / "thesis" / "pwddpg.yaml", ROOT / "configs" / "thesis" / "gsddpg.yaml"):
         tr, hp, st = fed_states(base=base)
 
         def old_round(st, hp, tr=tr):  # both jitted: eager op-by-op float32 differs from XLA's fusion
             r = st.reward_sum / jnp.maximum(st.reward_steps, 1.0)
-            new, agg_state = tr.aggregator.update(tr.shared(st.agents), r, st.agg_state, hp, jnp.ones(5, bool))
+            new, agg_state = tr.aggregator(hp).update(tr.shared(st.agents), r, st.agg_state, jnp.ones(5, bool))
             return st.replace(
                 agents=st.agents.replace(**new),
                 agg_state=agg_state,
@@ -229,7 +236,7 @@ def test_a_whole_run_at_participation_one_is_todays_run(monkeypatch):
 
     def old_round(state, hp):
         r = state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
-        new, agg_state = old.aggregator.update(old.shared(state.agents), r, state.agg_state, hp, jnp.ones(5, bool))
+        new, agg_state = old.aggregator(hp).update(old.shared(state.agents), r, state.agg_state, jnp.ones(5, bool))
         return state.replace(
             agents=state.agents.replace(**new),
             agg_state=agg_state,
@@ -302,6 +309,7 @@ def test_scale_attack_uses_the_last_global_model(fed_states):
 
 
 def test_a_sweep_over_participation_trim_and_attack_scale_compiles_once_and_reports_honest_clients(tmp_path):
+    from fedjax_nav.config.sweepfile import load_sweep
     from fedjax_nav.experiments.sweeps import run_sweep
     from fedjax_nav.training import sweep as sw
 
@@ -314,7 +322,7 @@ def test_a_sweep_over_participation_trim_and_attack_scale_compiles_once_and_repo
     }
     path = tmp_path / "robust.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
-    sweep = sw.load_sweep(path)
+    sweep = load_sweep(path)
     assert len(sweep.points) == 8 and len(sw.plan(sw.merge_jobs(sweep.points), budget=2**40)) == 1
     _, stats = run_sweep(sweep, tmp_path / "out", progress=False, echo=lambda s: None)
     assert [g["traces"] for g in stats["groups"]] == [1]
@@ -374,7 +382,8 @@ import json, sys
 import jax, jax.numpy as jnp, numpy as np
 from fedjax_nav.config import load_config
 from fedjax_nav.training import parallel
-from fedjax_nav.training.trainer import Trainer, hparams_from_config
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
 cfg = load_config(sys.argv[1], json.loads(sys.argv[2]))
 hp = hparams_from_config(cfg)
 out = {}

@@ -88,8 +88,9 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
     import jax.numpy as jnp
 
     from fedjax_nav.config import load_config
-    from fedjax_nav.training import parallel
-    from fedjax_nav.training.trainer import Trainer, hp_axes, hparams_from_config
+    from fedjax_nav.training import federation, parallel
+    from fedjax_nav.training.hparams import hp_axes, hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
 
     assert jax.device_count() == DEVICES, jax.devices()
     root = Path(__file__).resolve().parents[1] / "configs" / "thesis"
@@ -174,7 +175,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         )
         if method == "gsddpg":  # a global model away from the clients' mean
             st = st.replace(agg_state=jax.tree.map(lambda x: x + 0.1, st.agg_state))
-        step = jax.vmap(tr.federated_step, in_axes=(0, hp_axes(hp)))
+        step = jax.vmap(lambda s, h, tr=tr: federation.federated_round(tr, s, h)[0], in_axes=(0, hp_axes(hp)))
         taus = (0.0, 0.5, 1.0) if method != "gsddpg" else (0.5,)  # GS has no tau (beta steps the global model)
         for tau in taus:
             h = hp | {"fed.tau": jnp.float32(tau)}
@@ -342,7 +343,8 @@ def test_state_shardings_by_field(tmp_path):
 
     from fedjax_nav.config import load_config
     from fedjax_nav.training import parallel
-    from fedjax_nav.training.trainer import Trainer, hparams_from_config
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
 
     root = Path(__file__).resolve().parents[1] / "configs" / "thesis"
     cfg = load_config(root / "gsddpg.yaml", tiny_overrides(tiny_worlds(tmp_path)))

@@ -24,7 +24,9 @@ from fedjax_nav import cli
 from fedjax_nav.agents import ddpg
 from fedjax_nav.config import load_config
 from fedjax_nav.federated import aggregators as agg
-from fedjax_nav.training.trainer import Trainer, hparams_from_config
+from fedjax_nav.training import federation
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 THESIS = ROOT / "configs" / "thesis"
@@ -236,7 +238,7 @@ def test_aggregation_events_every_T_update_steps_and_gs_makes_clients_equal():
     # would be 35): every client holds the global model, which is the carried theta_w
     st = seed_slice(r.states, 0)
     for name in ("actor", "critic"):
-        for leaf, w in zip(jax.tree.leaves(getattr(st.agents, name)), jax.tree.leaves(st.agg_state[name])):
+        for leaf, w in zip(jax.tree.leaves(getattr(st.agents, name)), jax.tree.leaves(st.agg_state.theta_w[name])):
             leaf = np.asarray(leaf)
             for k in range(ROBOTS):
                 np.testing.assert_array_equal(leaf[k], np.asarray(w))
@@ -268,7 +270,7 @@ def test_federated_step_mixes_nets_with_the_method_weights_and_keeps_the_rest_lo
     cfg = load_config(THESIS / f"{name}.yaml", TINY + ["fed.tau=0.5", "fed.beta=0.5"])
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
-    out = tr.federated_step(st, hparams_from_config(cfg))
+    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
     r = np.array(REWARD_SUM) / 20
     w = {
         "flddpg": np.full(ROBOTS, 0.2),
@@ -288,7 +290,7 @@ def test_federated_step_include_targets_averages_the_targets_too():
     cfg = load_config(THESIS / "flddpg.yaml", TINY + ["fed.tau=1.0", "fed.include_targets=true"])
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
-    out = tr.federated_step(st, hparams_from_config(cfg))
+    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
     for name in ("actor", "critic", "actor_targ", "critic_targ"):
         for got, ref in zip(
             jax.tree.leaves(getattr(out.agents, name)), _np_mix(getattr(st.agents, name), np.full(ROBOTS, 0.2), 1.0)
@@ -305,9 +307,9 @@ def test_gs_federated_step_moves_the_global_model_and_every_client_to_it(include
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
     nets = {"actor": st.agents.actor, "critic": st.agents.critic}
-    prev = jax.tree.map(lambda x: x + 1.0, agg.init_global(nets))  # a global model != the clients' mean
+    prev = agg.GlobalState(jax.tree.map(lambda x: x.mean(0) + 1.0, nets))  # a global model != the clients' mean
     st = st.replace(agg_state=prev)
-    out = tr.federated_step(st, hparams_from_config(cfg))
+    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
     ref = [
         0.5 * np.asarray(p, np.float64) + 0.5 * np.asarray(c, np.float64).mean(0)
         for p, c in zip(jax.tree.leaves(prev), jax.tree.leaves(nets))

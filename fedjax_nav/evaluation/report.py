@@ -22,11 +22,11 @@ from fedjax_nav import rundir
 from fedjax_nav.evaluation.metrics import SELECTED_NOTE
 from fedjax_nav.evaluation.rollout import EvalError, RunEvaluation
 
-EVAL_JSON = "eval.json"
-EPISODES_CSV = "eval_episodes.csv"
-TRAJECTORIES_NPZ = "eval_trajectories.npz"
-BARS_PNG = "eval_bars.png"
-TRAJECTORIES_PNG = "eval_trajectories.png"
+EVAL_JSON = rundir.EVAL_JSON
+EPISODES_CSV = rundir.EVAL_EPISODES
+TRAJECTORIES_NPZ = rundir.EVAL_TRAJECTORIES
+BARS_PNG = rundir.EVAL_BARS_FIGURE
+TRAJECTORIES_PNG = rundir.EVAL_TRAJECTORIES_FIGURE
 EVAL_FILES = (EVAL_JSON, EPISODES_CSV, TRAJECTORIES_NPZ, BARS_PNG, TRAJECTORIES_PNG)
 COMPARISON_FILES = ("eval_comparison.csv", "eval_comparison.md", "eval_comparison.png")
 
@@ -34,12 +34,12 @@ COMPARISON_FILES = ("eval_comparison.csv", "eval_comparison.md", "eval_compariso
 # ----------------------------------------------------------------------------- one run's files
 
 
-def _finite(x):
+def json_safe(x):
     """NaN/Inf -> None (JSON has no NaN), recursively."""
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
+        return {k: json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
+        return [json_safe(v) for v in x]
     if isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
         return None
     return x
@@ -82,7 +82,7 @@ def write_run(ev: RunEvaluation, out_dir: str | Path | None = None, figures: boo
     else:
         for name in (BARS_PNG, TRAJECTORIES_PNG):  # an earlier evaluation's figures: now stale
             (out / name).unlink(missing_ok=True)
-    rundir.write_json(paths[0], _finite(ev.summary))
+    rundir.write_json(paths[0], json_safe(ev.summary))
     return paths
 
 

@@ -115,16 +115,21 @@ class EvalResult:
         return np.where(self.success, eff, np.nan)
 
 
-@functools.lru_cache(maxsize=16)
-def _program(env_settings: tuple, policy: Callable, chunk: int):
-    """jit(run) for one env configuration (static: num_beams, max_range, T, collision_test) and
-    one policy function (static; cached by identity, so the same function reuses the program).
+def eval_program(env_settings: dict, policy: Callable, chunk: int):
+    """jit(run) for one env configuration (`NavEnv` keyword arguments, mode "eval": see
+    `fedjax_nav.config.envs.env_settings`; its episode_length is the time-out T) and one policy
+    function (static; cached by identity, so the same function reuses the program).
 
     run(agent_params [A, ...], env_params, goal_index i32[G], keys [A, G*K]) with K = keys' second
     axis // G.
     """
-    num_beams, max_range, T, collision_test, *robot = env_settings  # robot: NavEnv's robot-model items
-    env = NavEnv(num_beams, max_range, T, mode="eval", collision_test=collision_test, noise=True, **dict(robot))
+    return _cached_program(tuple(sorted(env_settings.items())), policy, int(chunk))
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
+    env = NavEnv(**dict(env_settings))
+    T = env.episode_length
     n_chunks = -(-T // chunk)
 
     def init_one(key, g, env_params):
@@ -224,6 +229,7 @@ def evaluate_policy(
     collision_test: str = "exact",
     chunk: int = CHUNK,
     robot: dict | None = None,
+    env_settings: dict | None = None,
     **env_overrides,
 ) -> EvalResult:
     """Run the protocol for any policy: every agent x goal x attempt, one jitted program.
@@ -240,6 +246,9 @@ def evaluate_policy(
     env_overrides: EnvParams fields (dt, v_max, omega_max, goal_radius, collision_distance, ...).
     robot: NavEnv's static robot-model settings (`RobotConfig.env_settings()` without `noise`; the
         model's traced values go in env_overrides); None: the ideal robot.
+    env_settings: NavEnv's keyword arguments as a run builds them (`config.envs.env_settings`);
+        when given they replace num_beams, max_range, collision_test and robot (and max_steps is
+        its episode_length).
     """
     if not isinstance(world, World):
         world = _worlds.load(world)
@@ -270,12 +279,19 @@ def evaluate_policy(
             raise EvalError(f"num_agents={num_agents} but params have {A} agents on their leading axis")
         fn, agent_params = policy, params
 
-    settings = (int(num_beams), float(max_range), int(max_steps), str(collision_test), *sorted((robot or {}).items()))
+    if env_settings is None:
+        env_settings = {
+            "num_beams": int(num_beams),
+            "max_range": float(max_range),
+            "collision_test": str(collision_test),
+            **(robot or {}),
+        }
+    settings = {**env_settings, "episode_length": int(max_steps), "mode": "eval", "noise": True}
     env_params = make_params(world, range_noise=range_noise, action_noise=action_noise, **env_overrides)
     G, K = len(goal_rows), int(attempts)
     keys = jax.random.split(jax.random.key(seed), A * G * K).reshape(A, G * K)
     t0 = time.time()
-    program = _program(settings, fn, min(int(chunk), int(max_steps)))
+    program = eval_program(settings, fn, min(int(chunk), int(max_steps)))
     out = program(agent_params, env_params, jnp.asarray(goal_rows, jnp.int32), keys)
     out = jax.device_get(out)
     wall = time.time() - t0
@@ -318,13 +334,6 @@ class RunAgents:
     @property
     def num_agents(self) -> int:
         return len(self.agent_seed)
-
-    @property
-    def env_values(self) -> dict:
-        """The run's env constants an evaluation drives with (EnvParams keywords)."""
-        e = self.cfg.env
-        keys = ("dt", "v_max", "omega_max", "goal_radius", "collision_distance")
-        return {k: getattr(e, k) for k in keys}
 
     @property
     def agent_byzantine(self) -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 
 from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
+from fedjax_nav.config import envs
 from fedjax_nav.evaluation import report
 from fedjax_nav.evaluation.metrics import STRAIGHT_LINE_NOTE, episodes_frame, summarize
 from fedjax_nav.evaluation.rollout import (
@@ -142,11 +143,9 @@ def evaluate_run(
     run = run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir)
     cfg = run.cfg
     robot = cfg.robot if robot is None else robot
-    robot_kw, robot_values = {}, {}
-    if robot.enabled:
-        robot_kw = {k: v for k, v in robot.env_settings().items() if k != "noise"}
-        robot_values = robot.traced_values()
-        range_noise = robot_values.pop("range_noise")
+    under = dataclasses.replace(cfg, robot=robot)  # the run under the robot it is evaluated with
+    values = envs.eval_values(under, range_noise, action_noise)
+    range_noise, action_noise = values.pop("range_noise"), values.pop("action_noise")
     w, meta = _worlds.load_with_meta(world)
     k_eff = int(attempts) * run.num_robots // run.n_nets
     e, d = cfg.env, cfg.ddpg
@@ -160,12 +159,8 @@ def evaluate_run(
         range_noise=range_noise,
         action_noise=action_noise,
         seed=seed,
-        num_beams=e.num_beams,
-        max_range=e.max_range,
-        collision_test=e.collision_test,
-        **run.env_values,
-        robot=robot_kw,
-        **robot_values,
+        env_settings=envs.env_settings(under, "eval", noise=True, episode_length=T),
+        **values,
     )
     frame = episodes_frame(result, run.agent_seed, run.agent_net, run.agent_byzantine)
     summary = {

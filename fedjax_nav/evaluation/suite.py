@@ -28,8 +28,9 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
+from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
-from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, EvalError, _program
+from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, EvalError, eval_program
 from fedjax_nav.evaluation.runs import actor_policy, load_run
 from fedjax_nav.worlds import WorldError
 from fedjax_nav.worlds.suites import suite_names, suite_rooms
@@ -81,10 +82,11 @@ def evaluate_suite(
     R, G = world.goals.shape[:2]
     A, K = run.num_agents, int(attempts) * run.num_robots // run.n_nets
     T = int(max_steps or e.episode_length)
-    params = make_params(world, range_noise=range_noise, action_noise=action_noise, **run.env_values)
-    program = _program(
-        (e.num_beams, e.max_range, T, e.collision_test), actor_policy(d.hidden, d.depth, d.activation), min(CHUNK, T)
-    )
+    values = envs.eval_values(cfg, range_noise, action_noise)  # the run's robot model, as in training
+    range_noise = values["range_noise"]
+    params = make_params(world, **values)
+    settings = envs.env_settings(cfg, "eval", noise=True, episode_length=T)
+    program = eval_program(settings, actor_policy(d.hidden, d.depth, d.activation), min(CHUNK, T))
     keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
     t0 = time.time()
     rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
@@ -165,14 +167,14 @@ def _family_row(name: str, ep: pd.DataFrame) -> dict:
 
 def write_suite(result: dict, out: str | Path) -> list[Path]:
     """suite_episodes.csv, suite_families.csv, then suite.json (the marker of a complete one)."""
-    from fedjax_nav.evaluation.report import _finite
+    from fedjax_nav.evaluation.report import json_safe
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / EPISODES_CSV, out / FAMILIES_CSV, out / SUITE_JSON]
     rundir.atomic_write(paths[0], lambda p: result["episodes"].to_csv(p, index=False))
     rundir.atomic_write(paths[1], lambda p: result["families"].to_csv(p, index=False))
-    rundir.write_json(paths[2], _finite(result["summary"]))
+    rundir.write_json(paths[2], json_safe(result["summary"]))
     return paths
 
 

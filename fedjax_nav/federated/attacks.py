@@ -31,24 +31,20 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from fedjax_nav.federated.stacked import num_clients, rows
+
 ATTACKS = ("none", "noise", "scale", "sign_flip", "zeros", "stale")
+# The attacks that read the previous global model: a run with one of them keeps it in the
+# aggregator's state (`fedjax_nav.federated.aggregators.with_reference` where the rule does not).
+NEEDS_REFERENCE = ("scale", "sign_flip", "stale")
 # The `scale` each attack uses when the caller passes None (sign_flip, zeros, stale, none
 # ignore scale).
 DEFAULT_SCALES = {"none": 0.0, "noise": 1.0, "scale": -10.0, "sign_flip": 0.0, "zeros": 0.0, "stale": 0.0}
 DEFAULT_REWARD_SCALE = 10.0
 
 
-def _rows(v, p):
-    return v.reshape(v.shape + (1,) * (p.ndim - 1))
-
-
 def _check(sent, byzantine):
-    leaves = jax.tree.leaves(sent)
-    if not leaves or any(x.ndim == 0 for x in leaves):
-        raise ValueError("sent must be a pytree of stacked [K, ...] leaves")
-    k = leaves[0].shape[0]
-    if any(x.shape[0] != k for x in leaves):
-        raise ValueError(f"every leaf of sent must share K; got {[tuple(x.shape) for x in leaves]}")
+    k = num_clients(sent)
     byzantine = jnp.asarray(byzantine).astype(bool)
     if byzantine.shape != (k,):
         raise ValueError(f"byzantine must have shape ({k},); got {byzantine.shape}")
@@ -62,7 +58,7 @@ def attacked_params(kind: str, sent, key=None, scale=None, reference=None):
         raise ValueError(f"unknown attack {kind!r}; allowed: {', '.join(ATTACKS)}")
     if scale is None:
         scale = DEFAULT_SCALES[kind]
-    if kind in ("scale", "sign_flip", "stale"):
+    if kind in NEEDS_REFERENCE:
         if reference is None:
             raise ValueError(f"attack {kind!r} needs reference (the previous global model)")
         if jax.tree.structure(reference) != jax.tree.structure(sent):
@@ -105,7 +101,7 @@ def apply_attack(kind: str, sent, byzantine, key=None, scale=None, reference=Non
     if kind == "none":
         return sent
     bad = attacked_params(kind, sent, key, scale, reference)
-    return jax.tree.map(lambda b, p: jnp.where(_rows(byzantine, p), b, p), bad, sent)
+    return jax.tree.map(lambda b, p: jnp.where(rows(byzantine, p), b, p), bad, sent)
 
 
 def inflate_reward(rewards, byzantine, scale=DEFAULT_REWARD_SCALE):

@@ -2,8 +2,8 @@
 
 Every function takes `params`, a pytree whose leaves are stacked `[K, ...]` (K clients), and a
 participation mask `mask: bool[K]` (which clients send this round), and returns a pytree of the
-same structure WITHOUT the client axis (each leaf in its input dtype). The robust federation
-(issue 14) mixes it back into the clients like any other theta_w (`aggregators.mix`).
+same structure WITHOUT the client axis (each leaf in its input dtype). The robust rules
+(docs/robustness.md) mix it back into the clients like any other theta_w (`aggregators.mix`).
 
 Conventions shared by every function here:
 
@@ -30,11 +30,13 @@ RFA), Sun et al. 2019 (norm bounding).
 from __future__ import annotations
 
 import operator
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-CENTERS = ("mean", "median", "trimmed_mean", "krum", "geometric_median", "norm_bounded")
+from fedjax_nav.federated.stacked import num_clients, rows, weighted_sum, zero_out
+
 # Weiszfeld iterations of `geometric_median` by default. Starting from the mean, one far outlier
 # (1e6 against a cluster of spread 0.1) costs about log_(n-1)(1e6 / 0.1) iterations to walk back
 # to the cluster: 12 for n = 5; 32 leaves margin and is cheap (two passes over K x params each).
@@ -44,45 +46,12 @@ GEOMETRIC_MEDIAN_ITERS = 32
 # ----------------------------------------------------------------------------- helpers
 
 
-def num_clients(params) -> int:
-    """K, the (static) leading axis shared by every leaf."""
-    leaves = jax.tree.leaves(params)
-    if not leaves:
-        raise ValueError("params has no leaves")
-    k = leaves[0].shape[0] if leaves[0].ndim else None
-    if k is None or any(x.ndim == 0 or x.shape[0] != k for x in leaves):
-        raise ValueError(
-            f"every leaf of params must be stacked [K, ...] with one K; got shapes {[tuple(x.shape) for x in leaves]}"
-        )
-    return k
-
-
 def effective_mask(mask, k: int) -> jax.Array:
     """mask as bool[K]; an all-False mask becomes all-True (every client participates)."""
     mask = jnp.asarray(mask).astype(bool)
     if mask.shape != (k,):
         raise ValueError(f"mask must have shape ({k},) (one entry per client); got {mask.shape}")
     return jnp.where(jnp.any(mask), mask, jnp.ones_like(mask))
-
-
-def _rows(v: jax.Array, p: jax.Array) -> jax.Array:
-    """A per-client vector [K] shaped to broadcast against a leaf [K, ...]."""
-    return v.reshape(v.shape + (1,) * (p.ndim - 1))
-
-
-def _zero_out(params, mask):
-    """Non-participating rows set to 0 (so that inf/NaN there cannot leak through a product)."""
-    return jax.tree.map(lambda p: jnp.where(_rows(mask, p), p, jnp.zeros((), p.dtype)), params)
-
-
-def _weighted_sum(params, w: jax.Array):
-    """sum_k w_k theta_k (w f32[K]), as multiply-and-reduce, in each leaf's dtype."""
-
-    def leaf(p):
-        acc = jnp.promote_types(p.dtype, jnp.float32)
-        return jnp.sum(_rows(w.astype(acc), p) * p.astype(acc), axis=0).astype(p.dtype)
-
-    return jax.tree.map(leaf, params)
 
 
 def _sq_norms(params) -> jax.Array:
@@ -120,9 +89,9 @@ def _sorted_window_mean(params, mask, lo, hi):
 
     def leaf(p):
         acc = jnp.promote_types(p.dtype, jnp.float32)
-        x = jnp.where(_rows(mask, p), p.astype(acc), jnp.asarray(jnp.inf, acc))
+        x = jnp.where(rows(mask, p), p.astype(acc), jnp.asarray(jnp.inf, acc))
         s = jnp.sort(x, axis=0)
-        rank = _rows(jnp.arange(p.shape[0]), p)
+        rank = rows(jnp.arange(p.shape[0]), p)
         keep = (rank >= lo) & (rank < hi)
         total = jnp.sum(jnp.where(keep, s, jnp.zeros((), acc)), axis=0)
         return (total / (hi - lo).astype(acc)).astype(p.dtype)
@@ -154,7 +123,7 @@ def masked_mean(params, mask, weights=None):
     total = jnp.sum(jnp.abs(w))
     uniform = mask.astype(jnp.float32) / _count(mask).astype(jnp.float32)
     w = jnp.where(total > 0, w / jnp.where(total > 0, total, 1.0), uniform)
-    return _weighted_sum(_zero_out(params, mask), w)
+    return weighted_sum(zero_out(params, mask), w)
 
 
 def coordinate_median(params, mask):
@@ -221,7 +190,7 @@ def krum_select(params, mask, f, m):
     m = jnp.asarray(m).astype(jnp.int32)
     q = jnp.clip(n - f - 2, jnp.minimum(1, n - 1), n - 1)
     big = jnp.finfo(jnp.float32).max
-    d = jnp.minimum(pairwise_sq_dists(_zero_out(params, mask)), big)
+    d = jnp.minimum(pairwise_sq_dists(zero_out(params, mask)), big)
     others = mask[None, :] & mask[:, None] & ~jnp.eye(k, dtype=bool)
     d = jnp.sort(jnp.where(others, d, jnp.inf), axis=1)
     # The q nearest others of a participant are all finite (q <= n - 1).
@@ -268,13 +237,13 @@ def geometric_median(params, mask, iters: int = GEOMETRIC_MEDIAN_ITERS, eps=1e-8
         raise ValueError(f"iters must be a static int >= 0; got {iters!r}")
     k = num_clients(params)
     mask = effective_mask(mask, k)
-    x = _zero_out(params, mask)
+    x = zero_out(params, mask)
     z0 = masked_mean(x, mask)
 
     def step(_, z):
         dist = jnp.sqrt(_sq_dists_to(x, z))
         b = jnp.where(mask, 1.0 / jnp.maximum(eps, dist), 0.0)
-        return _weighted_sum(x, b / jnp.sum(b))
+        return weighted_sum(x, b / jnp.sum(b))
 
     return jax.lax.fori_loop(0, iters, step, z0)
 
@@ -296,43 +265,31 @@ def norm_bounded_mean(params, mask, reference, max_norm, weights=None):
     mask = effective_mask(mask, k)
     if jax.tree.structure(reference) != jax.tree.structure(params):
         raise ValueError("reference must have the structure of params (without the client axis)")
-    delta = _zero_out(jax.tree.map(lambda p, r: p - r[None].astype(p.dtype), params, reference), mask)
+    delta = zero_out(jax.tree.map(lambda p, r: p - r[None].astype(p.dtype), params, reference), mask)
     norm = jnp.sqrt(_sq_norms(delta))
     max_norm = jnp.maximum(jnp.asarray(max_norm).astype(jnp.float32), 0.0)
     s = jnp.minimum(1.0, max_norm / jnp.maximum(norm, jnp.finfo(jnp.float32).tiny))
-    clipped = jax.tree.map(lambda d: (d.astype(jnp.float32) * _rows(s, d)).astype(d.dtype), delta)
+    clipped = jax.tree.map(lambda d: (d.astype(jnp.float32) * rows(s, d)).astype(d.dtype), delta)
     mean = masked_mean(clipped, mask, weights)
     return jax.tree.map(lambda r, d: (r + d.astype(r.dtype)).astype(r.dtype), reference, mean)
 
 
-def center(
-    kind: str,
-    params,
-    mask,
-    *,
-    weights=None,
-    trim=0.2,
-    f=1,
-    m=1,
-    iters: int = GEOMETRIC_MEDIAN_ITERS,
-    eps=1e-8,
-    reference=None,
-    max_norm=1.0,
-):
-    """Dispatch on the (static) center name (one of CENTERS); the other arguments go to the
-    chosen function (`weights` only to "mean" and "norm_bounded")."""
-    if kind == "mean":
-        return masked_mean(params, mask, weights)
-    if kind == "median":
-        return coordinate_median(params, mask)
-    if kind == "trimmed_mean":
-        return trimmed_mean(params, mask, trim)
-    if kind == "krum":
-        return krum(params, mask, f, m)
-    if kind == "geometric_median":
-        return geometric_median(params, mask, iters, eps)
-    if kind == "norm_bounded":
-        if reference is None:
-            raise ValueError("center 'norm_bounded' needs reference (the previous global model)")
-        return norm_bounded_mean(params, mask, reference, max_norm, weights)
-    raise ValueError(f"unknown center {kind!r}; allowed: {', '.join(CENTERS)}")
+class Center(NamedTuple):
+    """A robust center as data: fn(params, mask, reference, *hparams) -> theta_w, with the `fed.*`
+    config names of its traced hyperparameters in fn's order (`reference` is the previous global
+    model; only norm bounding reads it)."""
+
+    fn: Callable
+    hparams: tuple[str, ...]
+
+
+# The one table of robust centers: `fed.aggregator` names, and the aggregators built on them
+# (`fedjax_nav.federated.aggregators.RULES`), are its keys.
+CENTERS: dict[str, Center] = {
+    "mean": Center(lambda p, mask, ref: masked_mean(p, mask), ()),
+    "median": Center(lambda p, mask, ref: coordinate_median(p, mask), ()),
+    "trimmed_mean": Center(lambda p, mask, ref, trim: trimmed_mean(p, mask, trim), ("trim",)),
+    "krum": Center(lambda p, mask, ref, f, m: krum(p, mask, f, m), ("krum_f", "krum_m")),
+    "geometric_median": Center(lambda p, mask, ref: geometric_median(p, mask), ()),
+    "norm_bounded": Center(lambda p, mask, ref, max_norm: norm_bounded_mean(p, mask, ref, max_norm), ("max_norm",)),
+}

@@ -4,7 +4,8 @@ policy of every network on a small held-out suite, inside the compiled program.
 The probe is the training layer's own small rollout (training may not import evaluation): every
 network x room x goal of the suite (`run.eval_suite`, default the group "probe": 4 rooms per
 family, 2 goals each, from the test stream, disjoint from the "heldout" suites) driven from start
-0 by the greedy actor, noiseless, `NavEnv(mode="eval")`, at most `env.episode_length` steps; an
+0 by the greedy actor, noiseless, under the run's robot model (`config.envs.make_env(cfg,
+"eval", noise=False)`: the model's dynamics, no sensor noise), at most `env.episode_length` steps; an
 episode succeeds when the robot reaches the goal before any collision. `success` gives the
 fraction of successful episodes per network, f32[n_nets]; the trainer reports it as the
 `eval_success` metric on every `eval_every`-th episode (NaN on the others).
@@ -16,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from fedjax_nav.agents import ddpg
-from fedjax_nav.env import NavEnv, make_params
+from fedjax_nav.config import envs
 from fedjax_nav.worlds.suites import suite_rooms
 
 CHUNK = 64  # steps per inner scan; the outer while_loop stops once every episode is over
@@ -24,17 +25,15 @@ CHUNK = 64  # steps per inner scan; the outer while_loop stops once every episod
 
 class Probe:
     def __init__(self, cfg, nets, suite: str = "probe"):
-        e = cfg.env
         self.world, self.families, self.seeds = suite_rooms(suite)
-        self.env = NavEnv(e.num_beams, e.max_range, e.episode_length, mode="eval", collision_test=e.collision_test)
+        self.env = envs.make_env(cfg, "eval", noise=False)
         self.nets = nets
-        self.T = e.episode_length
+        self.T = cfg.env.episode_length
         self.G = int(self.world.goals.shape[1])
 
     def success(self, actors, hp) -> jax.Array:
         """Success rate f32[n_nets] of the actors (leaves [n_nets, ...]) on the suite."""
-        values = {k[len("env.") :]: v for k, v in hp.items() if k.startswith("env.")}
-        params = make_params(self.world, **{k: v for k, v in values.items() if k in _ENV_FIELDS})
+        params = envs.env_params(self.world, hp)
         goals = jnp.arange(self.G)
 
         def episode(actor, p, g):  # one network, one room, one goal
@@ -64,15 +63,3 @@ class Probe:
         per_room = jax.vmap(per_goal, in_axes=(None, 0, None))
         ok, valid = jax.vmap(per_room, in_axes=(0, None, None))(actors, params, goals)  # [nets, rooms, goals]
         return jnp.sum(ok, (1, 2)) / jnp.maximum(jnp.sum(valid, (1, 2)), 1)
-
-
-_ENV_FIELDS = (
-    "dt",
-    "v_max",
-    "omega_max",
-    "goal_radius",
-    "collision_distance",
-    "reward_goal",
-    "reward_collision",
-    "progress_scale",
-)

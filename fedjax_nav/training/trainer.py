@@ -28,6 +28,7 @@ when it needs a new per-step value).
 from __future__ import annotations
 
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -37,34 +38,14 @@ from flax import struct
 from fedjax_nav import methods, worlds
 from fedjax_nav.agents import buffer as rb
 from fedjax_nav.agents import ddpg
-from fedjax_nav.config import Config
-from fedjax_nav.env import NavEnv, make_params
+from fedjax_nav.config import Config, envs
 from fedjax_nav.env.nav import EnvParams, EnvState
-from fedjax_nav.federated import aggregators as agg
 from fedjax_nav.training import federation
-from fedjax_nav.training.federation import FED_STREAM  # noqa: F401  (re-exported)
-from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config  # noqa: F401  (re-exported)
+from fedjax_nav.training.hparams import HParams, hp_axes
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
 from fedjax_nav.training.rooms import density as room_density  # the curriculum's, not an env field
-from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite  # noqa: F401
-
-ENV_PREFIX = "env."
-ENV_PREFIXES = (ENV_PREFIX, "robot.")  # traced env.* and robot.* values that are EnvParams fields
-
-
-def env_params(world: worlds.World, hp: HParams, random_starts: bool) -> EnvParams:
-    """EnvParams for the robots' worlds [robots] with every traced `env.*` value taken from hp
-    (traced: a sweep over them does not recompile). Every traced env field is an EnvParams field."""
-    values = {
-        k.split(".", 1)[1]: v
-        for k, v in hp.items()
-        if k.startswith(ENV_PREFIXES) and k.split(".", 1)[1] in EnvParams.__dataclass_fields__
-    }  # not the trainer's own (room_every)
-    return make_params(world, random_starts=random_starts, **values)
-
-
-env_params_of = env_params  # the module function (Trainer.env_params shadows it in methods)
+from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite
 
 
 @struct.dataclass
@@ -76,7 +57,7 @@ class TrainState:
     env_state: EnvState
     obs: jax.Array  # f32[robots, obs]
     epsilon: jax.Array  # f32[]
-    agg_state: dict  # the aggregator's state (GS: its global model {actor, critic}, no client axis)
+    agg_state: Any  # the aggregator's state (a NamedTuple of fedjax_nav.federated.aggregators; no client axis)
     reward_sum: jax.Array  # f32[robots] since the last federated step
     reward_steps: jax.Array  # f32[]
     key: jax.Array
@@ -106,20 +87,10 @@ class Trainer:
                 cfg, env=dataclasses.replace(cfg.env, worlds=cfg.env.worlds + (cfg.env.worlds[-1],) * self.pad)
             )
         e, d = cfg.env, cfg.ddpg
-        self.env = NavEnv(
-            e.num_beams,
-            e.max_range,
-            e.episode_length,
-            mode="learn",
-            collision_test=e.collision_test,
-            **cfg.robot.env_settings(),
-        )  # the ideal robot: noise off, the old program
+        self.env = envs.make_env(cfg, "learn")  # the ideal robot: noise off, the thesis's program
         self.rooms = TrainRooms(cfg)  # fixed playgrounds, or procedural rooms drawn in the program
         self.world = self.rooms.world
         f = cfg.fed
-        self.aggregator = agg.make(self.method.aggregator if f.aggregator == "method" else f.aggregator)
-        if f.attack in ("scale", "sign_flip", "stale") and f.aggregator == "method":
-            self.aggregator = agg.with_reference(self.aggregator)  # the attack needs the last global model
         self.num_robots = cfg.num_robots
         self.n_nets = 1 if self.method.shared_network else self.num_robots
         self.n_bufs = 1 if self.method.shared_buffer else self.num_robots
@@ -132,8 +103,13 @@ class Trainer:
         self.real = np.arange(self.num_robots) < self.n_real
         self.byzantine = self.real & (np.arange(self.num_robots) >= self.n_real - f.byzantine)
 
-    def env_params(self, hp: HParams) -> EnvParams:
-        return env_params(self.world, hp, self.method.random_starts)
+    def env_params(self, hp: HParams, world: worlds.World | None = None) -> EnvParams:
+        """The robots' EnvParams [robots] in `world` (default: the run's fixed rooms)."""
+        return envs.env_params(self.world if world is None else world, hp, self.method.random_starts)
+
+    def aggregator(self, hp: HParams):
+        """The run's aggregator with its traced hyperparameters (`training.federation.aggregator`)."""
+        return federation.aggregator(self, hp)
 
     def shared(self, agents: ddpg.AgentState) -> dict:
         """What a client sends in a federated round: its networks (and targets if configured)."""
@@ -141,6 +117,10 @@ class Trainer:
         if self.cfg.fed.include_targets:
             out.update(actor_targ=agents.actor_targ, critic_targ=agents.critic_targ)
         return out
+
+    def take_shared(self, agents: ddpg.AgentState, new: dict) -> ddpg.AgentState:
+        """The agents with what a federated round sent back (`shared`'s keys) put in place."""
+        return agents.replace(**new)
 
     # ------------------------------------------------------------------ init
 
@@ -153,7 +133,7 @@ class Trainer:
         if self.rooms.procedural:
             stream = self.rooms.stream(key)
             rooms = {"room_stream": stream, "world": self.rooms.draw(stream, 0, room_density(hp, 0))}
-        params = env_params(rooms["world"], hp, self.method.random_starts) if rooms else self.env_params(hp)
+        params = self.env_params(hp, rooms.get("world"))
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), params)
         return TrainState(
             **rooms,
@@ -162,7 +142,7 @@ class Trainer:
             env_state=env_state,
             obs=obs,
             epsilon=jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32),
-            agg_state=self.aggregator.init(self.real_rows(self.shared(agents))),
+            agg_state=self.aggregator(hp).init(self.real_rows(self.shared(agents))),
             reward_sum=jnp.zeros(self.num_robots),
             reward_steps=jnp.float32(0),
             key=k_run,
@@ -208,14 +188,6 @@ class Trainer:
         buf_axis = 0 if self.n_bufs == self.n_nets else None
         bufs = buffers if buf_axis == 0 else jax.tree.map(lambda b: b[0], buffers)
         return jax.vmap(one, in_axes=(0, buf_axis, 0))(agents, bufs, keys)
-
-    def federated_step(self, state: TrainState, hp: HParams) -> TrainState:
-        """One round (see `federated_round`), the state only."""
-        return self.federated_round(state, hp)[0]
-
-    def participation(self, key: jax.Array, hp: HParams) -> jax.Array:
-        """bool[robots]: who takes part in a round (`training.federation.participation`)."""
-        return federation.participation(self, key, hp)
 
     def federated_round(self, state: TrainState, hp: HParams) -> tuple[TrainState, dict]:
         """One federated round: the state and its stats (`training.federation.federated_round`)."""
@@ -284,7 +256,7 @@ class Trainer:
     def episode(self, state: TrainState, hp: HParams, ep: jax.Array) -> tuple[TrainState, dict]:
         """One episode of T steps for one seed; ep (the episode index) must be unbatched."""
         state, world = self.rooms.episode_world(state, hp, ep)  # new rooms / placements when configured
-        env_params = self.env_params(hp) if world is self.world else env_params_of(world, hp, self.method.random_starts)
+        env_params = self.env_params(hp, world)
         key, k_reset = jax.random.split(state.key)
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), env_params)
         state = state.replace(obs=obs, env_state=env_state, key=key)

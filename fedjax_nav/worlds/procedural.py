@@ -350,6 +350,6 @@ def generate_batch_with_info(keys: jax.Array, spec: RoomSpec) -> tuple[World, di
 
 
 @functools.lru_cache(maxsize=16)
-def _jitted(spec: RoomSpec):
+def jitted_generator(spec: RoomSpec):
     """The jitted one-room generator of a spec (shared by `suites.generate_to_file` and tests)."""
     return jax.jit(lambda k: generate(k, spec))

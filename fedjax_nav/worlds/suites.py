@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav.worlds import World, WorldError, from_dict, wall_segments
-from fedjax_nav.worlds.procedural import _jitted, generate_batch
+from fedjax_nav.worlds.procedural import generate_batch, jitted_generator
 from fedjax_nav.worlds.rooms import FAMILIES, RoomSpec, make_spec, parse_overrides
 
 ROOM_ROOT = 0x5EED  # root of every room key
@@ -222,7 +222,7 @@ def generate_to_file(family: str, seed: int, out: str | Path, **overrides) -> Pa
     family, field, value or seed."""
     spec = make_spec(family, **overrides)
     seed = _check_seed(seed)
-    world = _jitted(spec)(room_key(seed))
+    world = jitted_generator(spec)(room_key(seed))
     changed = ", ".join(f"{k}={v}" for k, v in overrides.items())
     desc = f"procedural room: family={family}, seed={seed}" + (f", {changed}" if changed else "")
     if is_test_seed(seed):
