@@ -10,9 +10,19 @@ this module (it imports the config and nothing above it)::
       params.npz         final actor/critic, leaves [seed, net, ...]  write_params / read_params
       learning_curves.png
       checkpoints/       orbax (fedjax_nav.training.checkpoint)
-      eval/<world>/      one folder per evaluation world          eval_dir
+      tensorboard/       live scalars (fedjax_nav.training.tblog)
+      eval/<world>/      one folder per evaluation world          eval_dir / read_eval
         eval.json, eval_episodes.csv, eval_trajectories.npz, eval_bars.png, eval_trajectories.png
+      eval/<suite>/      a held-out suite: suite.json, suite_families.csv, suite_episodes.csv
       .lock              "PID HOST" of the one process writing it  lock / RunLock
+
+A sweep folder (`fedjax-nav sweep --out`, the report folder of `reproduce`) holds run directories::
+
+    SWEEP/
+      points/<id>/       one run directory per point (`fedjax_nav.config.sweepfile.point_id`)
+      batches/<id>/      the checkpoints of a batch in flight
+      results.csv, summary.csv, sweep.yaml, sweep_stats.json, learning_curves.png   its tables
+      tables/<name>/     the tables of a second sweep sharing the folder
 
 Every write goes to a temporary file that is then renamed onto its name, so a reader never sees
 a half-written file and a crash leaves the previous version in place.
@@ -35,13 +45,33 @@ SUMMARY = "summary.json"
 PARAMS = "params.npz"
 CURVES = "learning_curves.png"
 CHECKPOINTS = "checkpoints"
+TENSORBOARD = "tensorboard"
 EVAL = "eval"
 NETWORKS = ("actor", "critic")
 
-
 LOCK = ".lock"
 # What a finished or started run leaves: `train --out` refuses a folder holding any (docs/reliability.md).
-RESULTS = (CONFIG, METRICS, SUMMARY, PARAMS, CURVES, CHECKPOINTS, EVAL, "tensorboard")
+RESULTS = (CONFIG, METRICS, SUMMARY, PARAMS, CURVES, CHECKPOINTS, EVAL, TENSORBOARD)
+
+# eval/<world>/: one evaluation (written by fedjax_nav.evaluation.report)
+EVAL_JSON = "eval.json"
+EVAL_EPISODES = "eval_episodes.csv"
+EVAL_TRAJECTORIES = "eval_trajectories.npz"
+EVAL_BARS_FIGURE = "eval_bars.png"
+EVAL_TRAJECTORIES_FIGURE = "eval_trajectories.png"
+# eval/<suite>/: a held-out suite (written by fedjax_nav.evaluation.suite)
+SUITE_JSON = "suite.json"
+SUITE_FAMILIES = "suite_families.csv"
+SUITE_EPISODES = "suite_episodes.csv"
+
+# a sweep folder
+POINTS = "points"
+BATCHES = "batches"
+SWEEP_RESULTS = "results.csv"  # tidy: point x seed x episode x robot, with the swept values
+SWEEP_SUMMARY = "summary.csv"  # one row per point
+SWEEP_FILE = "sweep.yaml"  # the sweep's description: names the sweep whose tables the folder holds
+SWEEP_STATS = "sweep_stats.json"
+SWEEP_TABLES = "tables"
 
 
 class RunDirError(ValueError):
@@ -257,12 +287,13 @@ def read_config(run: str | Path):
     return load_config(run_dir(run) / CONFIG)
 
 
-def read_metrics(run: str | Path):
+def read_metrics(run: str | Path, columns: list[str] | None = None):
+    """metrics.csv as a DataFrame (only `columns`, when given)."""
     import pandas as pd
 
     path = run_dir(run, (METRICS,)) / METRICS
     try:
-        return pd.read_csv(path)
+        return pd.read_csv(path, usecols=columns)
     except Exception as e:  # a truncated or foreign file: one line naming it
         raise RunDirError(f"{path}: cannot be read as a metrics table ({type(e).__name__}: {e})") from None
 
@@ -311,3 +342,33 @@ def world_slug(world: str | Path) -> str:
 def eval_dir(run: str | Path, world: str | Path) -> Path:
     """Where the evaluation of `run` on `world` is kept: RUN/eval/<world>/."""
     return Path(run) / EVAL / world_slug(world)
+
+
+def read_eval(run: str | Path, world: str | Path) -> dict | None:
+    """The eval.json of `run` on `world` (RUN/eval/<world>/), or None when it was not evaluated."""
+    path = eval_dir(run, world) / EVAL_JSON
+    return read_json(path) if path.exists() else None
+
+
+# ----------------------------------------------------------------------------- sweep folders
+
+
+def points_dir(folder: str | Path) -> Path:
+    """SWEEP/points/: the run directories of a sweep's points, one per point id."""
+    return Path(folder) / POINTS
+
+
+def batches_dir(folder: str | Path) -> Path:
+    """SWEEP/batches/: the checkpoints of the batches in flight, one folder per batch id."""
+    return Path(folder) / BATCHES
+
+
+# ----------------------------------------------------------------------------- the metrics table
+
+
+def success_last_per_seed(df, last: int = 25):
+    """Per seed (a pandas Series indexed by seed): the share of the frame's robots that reached the
+    goal, per episode, averaged over the run's last `last` episodes. `df`: rows of metrics.csv
+    (pass the rows of some robots for their success alone)."""
+    tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
+    return tail.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean()

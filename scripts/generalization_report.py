@@ -10,9 +10,9 @@ docs/img/generalization/.
 
 import argparse
 
+from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report
-from fedjax_nav.training.sweep import load_sweep
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("out", help="the sweep's output folder (its points/ are read)")

@@ -8,9 +8,9 @@ sweep's folder, and copy the small tables to results/ and the figures to docs/im
 
 import argparse
 
+from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.robustness import report
-from fedjax_nav.training.sweep import load_sweep
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("out", help="the sweep's output folder (its points/ are read)")

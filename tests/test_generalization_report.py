@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 
 from fedjax_nav.analysis import generalization as gz
+from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report
-from fedjax_nav.training.sweep import load_sweep
 
 FAMILIES = ["cylinders", "boxes", "walls", "mixture"]
 

@@ -43,6 +43,12 @@ def module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+def _is_module(name: str) -> bool:
+    """'fedjax_nav.worlds' -> True: a module or package of the source tree (not a name in one)."""
+    p = PKG.parent / name.replace(".", "/")
+    return p.with_suffix(".py").exists() or (p / "__init__.py").exists()
+
+
 def imports(path: Path) -> set[str]:
     """Every fedjax_nav module imported anywhere in the file (relative imports resolved)."""
     tree = ast.parse(path.read_text())
@@ -57,16 +63,12 @@ def imports(path: Path) -> set[str]:
                 base = ".".join(pkg[: len(pkg) - node.level + 1] + ([node.module] if node.module else []))
             else:
                 base = node.module or ""
-            if base == "fedjax_nav":  # `from fedjax_nav import worlds`
-                out |= {f"fedjax_nav.{a.name}" for a in node.names}
+            if base == "fedjax_nav":  # `from fedjax_nav import worlds`; `__version__` is the package's own
+                out |= {f"fedjax_nav.{a.name}" if _is_module(f"fedjax_nav.{a.name}") else base for a in node.names}
             elif base.startswith("fedjax_nav"):
                 out.add(base)
                 # `from fedjax_nav.evaluation import report`: the submodule too, where it is one
-                out |= {
-                    f"{base}.{a.name}"
-                    for a in node.names
-                    if (PKG.parent / base.replace(".", "/") / f"{a.name}.py").exists()
-                }
+                out |= {f"{base}.{a.name}" for a in node.names if _is_module(f"{base}.{a.name}")}
     return out
 
 
@@ -92,9 +94,18 @@ def test_imports_go_down_the_layers_only():
     assert not bad, "\n".join(bad)
 
 
-def test_evaluation_does_not_import_training():
-    for path in (PKG / "evaluation").rglob("*.py"):
-        assert not [i for i in imports(path) if unit(i) == "training"], path
+@pytest.mark.parametrize("package", ["evaluation", "analysis"])
+def test_results_readers_do_not_import_training(package):
+    """Evaluation and analysis read what training left on disk, through fedjax_nav.rundir (a
+    sweep's points through fedjax_nav.config.sweepfile): they import no training code at all, not
+    even a metric of the metrics table."""
+    bad = [
+        f"{path.relative_to(PKG.parent)} imports {i}"
+        for path in sorted((PKG / package).rglob("*.py"))
+        for i in sorted(imports(path))
+        if unit(i) == "training"
+    ]
+    assert not bad, "\n".join(bad)
 
 
 @pytest.mark.parametrize("path", sources(), ids=lambda p: str(p.relative_to(PKG)))

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 
 from fedjax_nav.analysis import robustness as rb
+from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.robustness import report
-from fedjax_nav.training.sweep import load_sweep
 
 
 def _summary(honest, all_=None, bytes_=51274000.0):

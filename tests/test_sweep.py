@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from fedjax_nav import cli
+from fedjax_nav.config import sweepfile as sf
 from fedjax_nav.experiments.sweeps import run_sweep
 from fedjax_nav.training import sweep as sw
 from fedjax_nav.training.run import train
@@ -50,7 +51,7 @@ def write_sweep(folder: Path, name: str = "tiny", **extra) -> Path:
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sweep")
-    sweep = sw.load_sweep(write_sweep(folder))
+    sweep = sf.load_sweep(write_sweep(folder))
     out = folder / "out"
     summ, stats = run_sweep(sweep, out, progress=False, echo=lambda s: None)
     return {"folder": folder, "sweep": sweep, "out": out, "summary": summ, "stats": stats}
@@ -61,7 +62,7 @@ def tiny(tmp_path_factory):
 
 @pytest.mark.parametrize("path", SWEEPS, ids=[p.stem for p in SWEEPS])
 def test_every_shipped_sweep_loads(path):
-    s = sw.load_sweep(path)
+    s = sf.load_sweep(path)
     assert s.points and s.seeds >= 1 and s.description
     ids = [p.id for p in s.points]
     assert len(set(ids)) == len(ids), "two grid points resolve to the same config"
@@ -93,37 +94,37 @@ def test_shipped_sweeps_cover_the_thesis_experiments():
         "rw_beta",
         "improvements",
     } <= names
-    tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")
+    tau = sf.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")
     assert [p.cfg.fed.tau for p in tau.points] == [0.0, 0.5, 1.0] and tau.seeds == 8
-    steps = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
+    steps = sf.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
     assert {p.cfg.fed.period_unit for p in steps.points} == {"steps"}
 
 
 def test_traced_fields_share_a_group_and_static_ones_split():
-    gamma = sw.load_sweep(ROOT / "configs" / "sweeps" / "gamma.yaml")
+    gamma = sf.load_sweep(ROOT / "configs" / "sweeps" / "gamma.yaml")
     assert len({sw.group_key(p.cfg) for p in gamma.points}) == 4  # one per method; gamma is traced
-    buf = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")
+    buf = sf.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")
     assert len({sw.group_key(p.cfg) for p in buf.points}) == 1  # capacity traced up to the allocation
-    ep = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_episodes.yaml")
-    st = sw.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
+    ep = sf.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_episodes.yaml")
+    st = sf.load_sweep(ROOT / "configs" / "sweeps" / "fed_period_steps.yaml")
     assert sw.group_key(ep.points[0].cfg) != sw.group_key(st.points[0].cfg)  # period_unit is static
 
 
 def test_plan_allocates_the_largest_buffer_and_packs_to_the_budget():
-    buf = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml", overrides=["env.episode_length=16"])
+    buf = sf.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml", overrides=["env.episode_length=16"])
     jobs = sw.merge_jobs(buf.points)
     (g,) = sw.plan(jobs, budget=2**40)
     assert g.trainer.cfg.buffer_rows == 70000 and len(g.batches) == 1 and g.batch_rows == 20
     per_row = sw.row_bytes(g.trainer) * sw.STATE_BYTES_FACTOR
     (g2,) = sw.plan(jobs, budget=9 * per_row)  # 9 rows fit: points of 4 seeds pack 2 per batch
     assert [len(b) for b in g2.batches] == [2, 2, 1] and g2.batch_rows == 8
-    with pytest.raises(sw.SweepError, match="memory budget"):
+    with pytest.raises(sf.SweepError, match="memory budget"):
         sw.plan(jobs, budget=per_row)
 
 
 def test_shared_configs_are_trained_once_with_the_most_seeds():
-    a = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")  # 8 seeds, tau 0.5 = the thesis FLDDPG
-    b = sw.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")  # 4 seeds, 10 000 = the same
+    a = sf.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml")  # 8 seeds, tau 0.5 = the thesis FLDDPG
+    b = sf.load_sweep(ROOT / "configs" / "sweeps" / "buffer_flddpg.yaml")  # 4 seeds, 10 000 = the same
     jobs = sw.merge_jobs(a.points + b.points)
     assert len(jobs) == 3 + 5 - 1
     shared = [j for j in jobs if j.id == a.points[1].id]
@@ -145,14 +146,14 @@ def test_bad_sweep_files_name_the_key(tmp_path, spec, match):
     full = {"base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"), **spec}
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(full))
-    with pytest.raises(sw.SweepError, match=match):
-        sw.load_sweep(path)
+    with pytest.raises(sf.SweepError, match=match):
+        sf.load_sweep(path)
 
 
 def test_parse_bytes():
     assert sw.parse_bytes("4G") == 4 * 2**30 and sw.parse_bytes("512M") == 512 * 2**20
     assert sw.parse_bytes("1.5GB") == int(1.5 * 2**30) and sw.parse_bytes(1000) == 1000
-    with pytest.raises(sw.SweepError, match="memory budget"):
+    with pytest.raises(sf.SweepError, match="memory budget"):
         sw.parse_bytes("lots")
 
 
@@ -222,7 +223,7 @@ def test_a_finished_sweep_trains_nothing_again(tiny):
 def test_a_killed_sweep_resumes_without_recomputing_finished_points(tiny, tmp_path, monkeypatch):
     """Batch 1 finishes; batch 2 dies after its first episode (checkpointed). The rerun trains only
     batch 2, from the checkpoint, and every number equals the uninterrupted sweep's."""
-    sweep = sw.load_sweep(write_sweep(tiny["folder"], "tiny-kill", set=TINY_SET + ["run.checkpoint_every=1"]))
+    sweep = sf.load_sweep(write_sweep(tiny["folder"], "tiny-kill", set=TINY_SET + ["run.checkpoint_every=1"]))
     assert [p.id for p in sweep.points] == [p.id for p in tiny["sweep"].points]
     per_row = sw.row_bytes(sw.plan(sw.merge_jobs(sweep.points), 2**40)[0].trainer) * sw.STATE_BYTES_FACTOR
     budget = 6 * per_row  # 3 points of 2 seeds per batch: 2 batches
@@ -289,7 +290,7 @@ def test_stack_hparams_keeps_equal_fields_scalar():
 
 
 def test_rows_pad_to_a_multiple_of_the_devices():
-    tau = sw.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml", overrides=["env.episode_length=16"], seeds=1)
+    tau = sf.load_sweep(ROOT / "configs" / "sweeps" / "tau.yaml", overrides=["env.episode_length=16"], seeds=1)
     (g,) = sw.plan(sw.merge_jobs(tau.points), budget=2**40, devices=2)
     assert g.batch_rows == 4 and g.batched == {"fed.tau"}  # 3 points x 1 seed, padded to 4 rows
     seeds, hp, spans = sw.batch_rows(g.batches[0], g.batch_rows, g.batched)
@@ -306,8 +307,8 @@ def test_a_sweep_spread_over_two_devices_matches_one(tiny, tmp_path):
 
     script = (
         "import json, sys\nfrom fedjax_nav.experiments.sweeps import run_sweep\n"
-        "from fedjax_nav.training import sweep as sw\n"
-        "s = sw.load_sweep(sys.argv[1])\n"
+        "from fedjax_nav.config.sweepfile import load_sweep\n"
+        "s = load_sweep(sys.argv[1])\n"
         "_, st = run_sweep(s, sys.argv[2], progress=False, echo=lambda x: None)\n"
         "print(json.dumps(st))\n"
     )
@@ -340,7 +341,7 @@ def test_a_sweep_spread_over_two_devices_matches_one(tiny, tmp_path):
 def test_a_sweep_over_an_env_constant_compiles_once(grid, tmp_path):
     """env.* fields marked traced are HParams, not constants of the program: one group, one trace,
     and the value reaches the env (the points' rewards differ)."""
-    sweep = sw.load_sweep(write_sweep(tmp_path, "env", grid=grid, seeds=1))
+    sweep = sf.load_sweep(write_sweep(tmp_path, "env", grid=grid, seeds=1))
     assert len(sw.plan(sw.merge_jobs(sweep.points), budget=2**40)) == 1
     _, stats = run_sweep(sweep, tmp_path / "out", progress=False, echo=lambda s: None)
     assert [g["traces"] for g in stats["groups"]] == [1]
@@ -404,7 +405,7 @@ def test_a_grid_over_episodes_trains_its_longest_run_and_saves_the_shorter_from_
     """run.episodes [2, 4], seeds 2 and 1 (points) : one job of 4 episodes and 2 seeds, the
     2-episode point written from its first 2 episodes, equal to that config trained alone."""
     path = write_sweep(tmp_path, "budgets", grid={"run.episodes": [2, 4]})
-    sweep = sw.load_sweep(path)
+    sweep = sf.load_sweep(path)
     jobs = sw.fold_prefixes(sw.merge_jobs(sweep.points))
     (job,) = jobs
     assert job.cfg.run.episodes == 4 and [p.cfg.run.episodes for p in job.prefixes] == [2]
@@ -444,7 +445,7 @@ def test_two_sweeps_sharing_a_folder_keep_their_own_tables(tiny, tmp_path):
     out = tiny["out"]
     before = {f: (out / f).read_bytes() for f in ("results.csv", "summary.csv", "sweep.yaml")}
     subset = {"fed.tau": [0.5], "ddpg.buffer_size": [16]}  # one point of the tiny sweep
-    other = sw.load_sweep(write_sweep(tiny["folder"], "tiny-subset", grid=subset))
+    other = sf.load_sweep(write_sweep(tiny["folder"], "tiny-subset", grid=subset))
     msgs = []
     summ, stats = run_sweep(other, out, progress=False, echo=msgs.append)
     assert stats["groups"] == [] and stats["tables"] == str(out / "tables" / "tiny-subset")  # shared point: no training

@@ -14,7 +14,6 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ import pandas as pd
 from fedjax_nav import rundir
 from fedjax_nav.analysis.plots import probe_per_episode
 from fedjax_nav.analysis.sweeps import finished
-from fedjax_nav.training.sweep import Sweep
+from fedjax_nav.config.sweepfile import Sweep
 
 ARENA = "eval"  # the thesis's evaluation world
 GOAL_ARENA, GOAL_FAMILY = 0.90, 0.85  # the issue's goal: arena and every held-out family
@@ -40,8 +39,8 @@ def rooms(cfg) -> str:
 
 
 def _suite_families(folder: Path) -> pd.DataFrame | None:
-    f = folder / "suite_families.csv"
-    return pd.read_csv(f) if (folder / "suite.json").exists() and f.exists() else None
+    f = folder / rundir.SUITE_FAMILIES
+    return pd.read_csv(f) if (folder / rundir.SUITE_JSON).exists() and f.exists() else None
 
 
 def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
@@ -63,9 +62,9 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             "arena": np.nan,
             "arena_seed_std": np.nan,
         }
-        ev = rundir.eval_dir(d, ARENA) / "eval.json"
-        if ev.exists():
-            a = json.loads(ev.read_text())["all_agents"]["overall"]
+        ev = rundir.read_eval(d, ARENA)
+        if ev is not None:
+            a = ev["all_agents"]["overall"]
             row.update(arena=a["success_rate"], arena_seed_std=a["success_seed_std"])
         fam = _suite_families(rundir.eval_dir(d, suite))
         if fam is not None:
@@ -83,10 +82,10 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
     for p, s in finished(sweep, Path(points_dir)):
         d = Path(points_dir) / p.id
         arena, fams = {}, None
-        ev = rundir.eval_dir(d, ARENA) / "eval.json"
-        if ev.exists():
-            arena = json.loads(ev.read_text())["all_agents"]["success_per_seed"]
-        eps = rundir.eval_dir(d, suite) / "suite_episodes.csv"
+        ev = rundir.read_eval(d, ARENA)
+        if ev is not None:
+            arena = ev["all_agents"]["success_per_seed"]
+        eps = rundir.eval_dir(d, suite) / rundir.SUITE_EPISODES
         if eps.exists():
             fams = pd.read_csv(eps).groupby(["seed", "family"])["success"].mean().unstack()
         for seed, train in enumerate(s["success_last_per_seed"]):
@@ -193,10 +192,10 @@ def probe_curves(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
     episode (means over seeds and robots), and the std over seeds of the probe's success."""
     rows = []
     for p, _ in finished(sweep, Path(points_dir)):
-        f = Path(points_dir) / p.id / rundir.METRICS
-        if not f.exists() or not p.cfg.run.eval_every:
+        d = Path(points_dir) / p.id
+        if not (d / rundir.METRICS).exists() or not p.cfg.run.eval_every:
             continue
-        c = probe_per_episode(pd.read_csv(f)).reset_index()
+        c = probe_per_episode(rundir.read_metrics(d)).reset_index()
         rows.append(
             c.assign(point=p.id, label=p.label, method=p.cfg.method, rooms=rooms(p.cfg), budget=p.cfg.run.episodes)
         )

@@ -11,7 +11,6 @@ it exists). Nothing here trains or evaluates; `fedjax_nav.experiments.robustness
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +18,8 @@ import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.federated.attacks import ATTACKS
-from fedjax_nav.training.metrics import success_last_per_seed
-from fedjax_nav.training.sweep import Sweep
 
 AGGREGATOR_NAMES = {
     "method": "FedAvg",
@@ -34,11 +32,11 @@ AGGREGATOR_NAMES = {
 }
 WITHIN = 0.10  # the issue's tolerance: within 10% of the clean run (relative)
 LAST = 25  # episodes: learning success is taken over the last 25 (summary.json's success_last)
+ARENA = "eval"  # the thesis's evaluation world
 
 
 def _eval(folder: Path) -> dict | None:
-    f = rundir.eval_dir(folder, "eval") / "eval.json"
-    return json.loads(f.read_text()) if f.exists() else None
+    return rundir.read_eval(folder, ARENA)
 
 
 def _honest_block(ev: dict) -> dict:
@@ -62,11 +60,10 @@ def setting(cfg) -> str:
 def _success_but_last(folder: Path, last: int = LAST) -> float:
     """Success over the last `last` episodes of every robot but the last one (mean over seeds):
     in a clean run, what the robots that are honest when the last client is Byzantine reached."""
-    f = folder / "metrics.csv"
-    if not f.exists():
+    if not (folder / rundir.METRICS).exists():
         return np.nan
-    df = pd.read_csv(f, usecols=["episode", "seed", "robot", "reached_goal"])
-    return float(success_last_per_seed(df[df.robot < df.robot.max()], last).mean())
+    df = rundir.read_metrics(folder, ["episode", "seed", "robot", "reached_goal"])
+    return float(rundir.success_last_per_seed(df[df.robot < df.robot.max()], last).mean())
 
 
 def table(sweep: Sweep, points_dir: Path) -> pd.DataFrame:

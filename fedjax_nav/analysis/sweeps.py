@@ -3,7 +3,6 @@ results, the per-point summary, the sweep description and its learning curves.""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pandas as pd
@@ -11,15 +10,15 @@ import yaml
 
 from fedjax_nav import rundir
 from fedjax_nav.analysis.plots import learning_curves
-from fedjax_nav.training.sweep import Sweep
+from fedjax_nav.config.sweepfile import Sweep
 
 
 def finished(sweep: Sweep, points_dir: Path):
     """(point, its summary.json) for every point of the sweep that has been trained, in grid order."""
     for p in sweep.points:
-        f = Path(points_dir) / p.id / "summary.json"
+        f = Path(points_dir) / p.id / rundir.SUMMARY
         if f.exists():
-            yield p, json.loads(f.read_text())
+            yield p, rundir.read_json(f)
 
 
 def point_summaries(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
@@ -60,10 +59,10 @@ def point_metrics(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
     """The tidy table: grid point x seed x episode x robot, with the swept values as columns."""
     frames = []
     for p in sweep.points:
-        f = points_dir / p.id / "metrics.csv"
-        if not f.exists():
+        d = Path(points_dir) / p.id
+        if not (d / rundir.METRICS).exists():
             continue
-        df = pd.read_csv(f)
+        df = rundir.read_metrics(d)
         df.insert(0, "point", p.id)
         df.insert(1, "label", p.label)
         df.insert(2, "method", p.cfg.method)
@@ -76,17 +75,17 @@ def point_metrics(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
 
 
 def write_tables(sweep: Sweep, points_dir: Path, out_dir: Path) -> list[Path]:
-    """results.csv (tidy), summary.csv (last-25 means) and success.png for one sweep."""
+    """results.csv (tidy), summary.csv (last-25 means), sweep.yaml (the description) and
+    learning_curves.png for one sweep."""
     out_dir.mkdir(parents=True, exist_ok=True)
     res, summ = point_metrics(sweep, points_dir), point_summaries(sweep, points_dir)
-    paths = [out_dir / "results.csv", out_dir / "summary.csv"]
+    paths = [out_dir / rundir.SWEEP_RESULTS, out_dir / rundir.SWEEP_SUMMARY, out_dir / rundir.SWEEP_FILE]
     rundir.atomic_write(paths[0], lambda p: res.to_csv(p, index=False))
     rundir.atomic_write(paths[1], lambda p: summ.to_csv(p, index=False))
-    rundir.write_text(out_dir / "sweep.yaml", yaml.safe_dump(describe(sweep), sort_keys=False))
-    paths.append(out_dir / "sweep.yaml")
+    rundir.write_text(paths[2], yaml.safe_dump(describe(sweep), sort_keys=False))
     if len(res):
         runs = {lbl: g for lbl, g in res.groupby("label", sort=False)}
-        paths.append(learning_curves(runs, out_dir / "learning_curves.png", title=f"sweep {sweep.name}"))
+        paths.append(learning_curves(runs, out_dir / rundir.CURVES, title=f"sweep {sweep.name}"))
     return paths
 
 

@@ -30,9 +30,11 @@ def _train(args: argparse.Namespace) -> int:
 
     import jax
 
+    from fedjax_nav import rundir
     from fedjax_nav.config import diff, load_config
-    from fedjax_nav.training.run import RESUME_CHANGEABLE, train
-    from fedjax_nav.training.sweep import SweepError, parse_bytes
+    from fedjax_nav.config.sweepfile import SweepError
+    from fedjax_nav.training.run import refuse_config_change, train
+    from fedjax_nav.training.sweep import parse_bytes
 
     overrides = list(args.set or [])
     if args.seeds is not None:
@@ -47,7 +49,7 @@ def _train(args: argparse.Namespace) -> int:
         raise UserError(f"--memory-budget: {e}") from None
     src = f"{args.config}{' (with --set)' if overrides else ''}" if args.config else "<defaults> (with --set)"
     if args.resume:
-        saved_path = Path(args.resume) / "config.yaml"
+        saved_path = Path(args.resume) / rundir.CONFIG
         if not _is_file(saved_path):
             raise UserError(f"{saved_path}: missing; {args.resume} is not a run directory")
         cfg = src_cfg = load_config(saved_path)
@@ -55,16 +57,8 @@ def _train(args: argparse.Namespace) -> int:
         if args.config or overrides:
             asked = load_config(args.config or saved_path, overrides)
             changed = diff(cfg, asked)
-            refused = [k for k in changed if not (args.allow_config_change and k in RESUME_CHANGEABLE)]
-            if refused:
-                raise UserError(
-                    f"{saved_path}: --resume with a changed config; differing fields: {', '.join(refused)}"
-                    + (
-                        f" (--allow-config-change permits only {', '.join(RESUME_CHANGEABLE)})"
-                        if args.allow_config_change
-                        else ""
-                    )
-                )
+            against = "the config asked for on the command line"
+            refuse_config_change(changed, args.allow_config_change, saved_path, against)
             cfg = asked if changed else src_cfg
         out = args.resume
     else:
@@ -113,7 +107,8 @@ def _train(args: argparse.Namespace) -> int:
         f"+- {s['success_last_std']:.3f} (std over {s['seeds']} seeds); mean reward per step "
         f"{s['reward_last']:.3f}; {s['wall_s']:.0f} s"
     )
-    say(f"wrote {out}/ (config.yaml, metrics.csv, summary.json, params.npz, learning_curves.png, checkpoints/)")
+    wrote = (rundir.CONFIG, rundir.METRICS, rundir.SUMMARY, rundir.PARAMS, rundir.CURVES, rundir.CHECKPOINTS + "/")
+    say(f"wrote {out}/ ({', '.join(wrote)})")
     return 0
 
 
@@ -189,8 +184,10 @@ def _bench(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from fedjax_nav import rundir
+    from fedjax_nav.config.sweepfile import SweepError, load_sweep
     from fedjax_nav.experiments.sweeps import run_sweep
-    from fedjax_nav.training.sweep import SweepError, load_sweep, parse_bytes
+    from fedjax_nav.training.sweep import parse_bytes
 
     try:
         tb = ["run.tensorboard=true"] if args.tensorboard else []
@@ -206,16 +203,15 @@ def _sweep(args: argparse.Namespace) -> int:
         print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     traces = ", ".join(f"{g['method']}: {g['traces']}" for g in stats["groups"]) or "none (all points were done)"
     print(f"{stats['wall_s']:.0f} s; compilations per group: {traces}")
-    print(
-        f"wrote {stats['tables']}/ (summary.csv, results.csv, learning_curves.png), "
-        f"{out}/points/<id>/ (run directories)"
-    )
+    tables = ", ".join((rundir.SWEEP_SUMMARY, rundir.SWEEP_RESULTS, rundir.CURVES))
+    print(f"wrote {stats['tables']}/ ({tables}), {rundir.points_dir(out)}/<id>/ (run directories)")
     return 0
 
 
 def _reproduce(args: argparse.Namespace) -> int:
+    from fedjax_nav.config.sweepfile import SweepError
     from fedjax_nav.experiments.reproduce import reproduce
-    from fedjax_nav.training.sweep import SweepError, parse_bytes
+    from fedjax_nav.training.sweep import parse_bytes
 
     only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
     try:

@@ -19,8 +19,8 @@ from typing import Callable
 from fedjax_nav import rundir
 from fedjax_nav.analysis import generalization as gz
 from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.experiments.thesis_report import _md_table
-from fedjax_nav.training.sweep import Sweep
 
 
 def tables(name: str) -> tuple[str, str, str]:
@@ -59,7 +59,7 @@ def report(
     """Evaluate (unless `evaluate` is False), then write the report into `out`; copy the small
     tables and the figures (with the FLDDPG points' arena trajectories) where asked."""
     out = Path(out)
-    points = out / "points"
+    points = rundir.points_dir(out)
     if evaluate:
         for p, _ in finished(sweep, points):
             if (points / p.id / rundir.PARAMS).exists():
@@ -87,7 +87,7 @@ def report(
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
-            src = rundir.eval_dir(points / r.point, gz.ARENA) / "eval_trajectories.png"
+            src = rundir.eval_dir(points / r.point, gz.ARENA) / rundir.EVAL_TRAJECTORIES_FIGURE
             if src.exists():
                 key = f"{name}_arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}"
                 figures[key + (f"_{r.point}" if key + ".png" in figures else "") + ".png"] = src

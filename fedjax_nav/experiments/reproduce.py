@@ -33,18 +33,20 @@ from typing import Callable
 
 import pandas as pd
 
+from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import write_tables
+from fedjax_nav.config.sweepfile import Sweep, SweepError, load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.thesis_report import (
     _md_table,
     _point_wall,
     by_setting,
     draw_figures,
+    experiment_dir,
     report_markdown,
     table2,
     table3,
 )
-from fedjax_nav.rundir import atomic_write
 from fedjax_nav.training import sweep as sw
 
 EXPERIMENTS = (
@@ -93,14 +95,14 @@ SCALES = {
 }
 
 
-def load_experiments(scale: Scale, only=None, seeds: int | None = None, overrides=()) -> list[sw.Sweep]:
+def load_experiments(scale: Scale, only=None, seeds: int | None = None, overrides=()) -> list[Sweep]:
     names = list(EXPERIMENTS if not only else only)
     unknown = [n for n in names if n not in EXPERIMENTS]
     if unknown:
-        raise sw.SweepError(f"--only: unknown experiment(s) {unknown}; allowed: {', '.join(EXPERIMENTS)}")
+        raise SweepError(f"--only: unknown experiment(s) {unknown}; allowed: {', '.join(EXPERIMENTS)}")
     n = seeds if seeds is not None else scale.seeds
     return [
-        sw.load_sweep(
+        load_sweep(
             SWEEP_DIR / f"{name}.yaml",
             overrides=[*scale.overrides, *overrides],
             seeds=n,
@@ -113,10 +115,9 @@ def load_experiments(scale: Scale, only=None, seeds: int | None = None, override
 # ----------------------------------------------------------------------------- evaluation
 
 
-def evaluate_points(sweeps: list[sw.Sweep], points_dir: Path, attempts: int, echo: Callable) -> pd.DataFrame:
+def evaluate_points(sweeps: list[Sweep], points_dir: Path, attempts: int, echo: Callable) -> pd.DataFrame:
     """Evaluate every point of the experiments marked `evaluate` on the thesis arena (kept in the
     point's `eval/eval/` folder and reused when the same attempts were asked for). One row per point."""
-    from fedjax_nav import rundir
     from fedjax_nav.evaluation import evaluated
 
     rows, seen = [], set()
@@ -177,7 +178,7 @@ def reproduce(
     import jax
 
     if scale not in SCALES:
-        raise sw.SweepError(f"--scale {scale!r}: allowed {', '.join(SCALES)}")
+        raise SweepError(f"--scale {scale!r}: allowed {', '.join(SCALES)}")
     sc = SCALES[scale]
     out = Path(out or f"runs/reproduce-{scale}")
     out.mkdir(parents=True, exist_ok=True)
@@ -186,24 +187,26 @@ def reproduce(
     jobs = sw.merge_jobs([p for s in sweeps for p in s.points])
     stats = sw.run_jobs(jobs, out, budget, progress, desc=f"reproduce {scale}", echo=echo, devices=devices)
     t_train = time.time() - t0
-    points = out / "points"
+    points = rundir.points_dir(out)
     for s in sweeps:
-        write_tables(s, points, out / "experiments" / s.name)
+        write_tables(s, points, experiment_dir(out, s.name))
     t1 = time.time()
     evals = evaluate_points(sweeps, points, sc.attempts, echo)
     t_eval = time.time() - t1
-    atomic_write(out / "eval_summary.csv", lambda p: evals.to_csv(p, index=False))
+    rundir.atomic_write(out / "eval_summary.csv", lambda p: evals.to_csv(p, index=False))
     by_name = {s.name: s for s in sweeps}
     tables = {s.name: by_setting(s, points) for s in sweeps}
     figs = draw_figures(by_name, out, evals, tables)
     t2 = table2()
-    atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
-    atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(_md_table(t2) + "\n"))
+    rundir.atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
+    rundir.atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(_md_table(t2) + "\n"))
     t3 = table3(by_name["methods"], points) if "methods" in by_name else pd.DataFrame()
-    atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
-    atomic_write(out / "table3_communication.md", lambda p: Path(p).write_text(_md_table(t3) + "\n" if len(t3) else ""))
+    rundir.atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
+    rundir.atomic_write(
+        out / "table3_communication.md", lambda p: Path(p).write_text(_md_table(t3) + "\n" if len(t3) else "")
+    )
     for name, t in tables.items():
-        atomic_write(out / "experiments" / name / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
+        rundir.atomic_write(experiment_dir(out, name) / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
     info = {
         "scale": scale,
         "overrides": list(sc.overrides),
@@ -234,8 +237,8 @@ def reproduce(
     )
     info["history"] = history
     info["train_compute_s"] = sum(_point_wall(points / j.id) for j in jobs)
-    atomic_write(out / "reproduce.json", lambda p: Path(p).write_text(json.dumps(info, indent=1)))
+    rundir.atomic_write(out / "reproduce.json", lambda p: Path(p).write_text(json.dumps(info, indent=1)))
     md = report_markdown(sweeps, tables, t2, t3, evals, info)
-    atomic_write(out / "report.md", lambda p: Path(p).write_text(md))
+    rundir.atomic_write(out / "report.md", lambda p: Path(p).write_text(md))
     echo(f"wrote {out}/report.md, {len(figs)} figures, tables 2 and 3")
     return info

@@ -17,8 +17,8 @@ from typing import Callable
 from fedjax_nav import rundir
 from fedjax_nav.analysis import robustness as rb
 from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.experiments.thesis_report import _md_table
-from fedjax_nav.training.sweep import Sweep
 
 TABLES = ("robustness.csv", "robustness_per_seed.csv", "robustness_verdict.csv")
 FIGURES = ("robustness_learning.png", "robustness_eval.png")
@@ -36,7 +36,7 @@ def evaluate_arena(sweep: Sweep, points: Path, attempts: int, echo: Callable) ->
         if not (d / rundir.PARAMS).exists():
             continue
         try:
-            if evaluated(d, "eval", attempts)[1]:
+            if evaluated(d, rb.ARENA, attempts)[1]:
                 echo(f"evaluated {rb.setting(p.cfg)} ({p.id})")
         except EvalError as e:
             notes[p.id] = str(e).split(": ", 1)[-1]
@@ -71,7 +71,7 @@ def report(
     """Evaluate (unless `evaluate` is False), then write the report into `out`; copy the small
     tables and the figures where asked (results/, docs/img/robustness/). Returns the paths."""
     out = Path(out)
-    points = out / "points"
+    points = rundir.points_dir(out)
     notes = evaluate_arena(sweep, points, attempts, echo) if evaluate else {}
     t, ps = rb.table(sweep, points), rb.per_seed(sweep, points)
     if len(t):

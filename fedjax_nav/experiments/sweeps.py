@@ -10,7 +10,8 @@ import yaml
 
 from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import point_summaries, write_tables
-from fedjax_nav.training.sweep import Sweep, merge_jobs, run_jobs
+from fedjax_nav.config.sweepfile import Sweep
+from fedjax_nav.training.sweep import merge_jobs, run_jobs
 
 
 def run_sweep(
@@ -29,9 +30,9 @@ def run_sweep(
     )
     tables = tables_dir(sweep, out)
     stats["tables"] = str(tables)
-    write_tables(sweep, out / "points", tables)
-    summ = point_summaries(sweep, out / "points")
-    rundir.write_json(tables / "sweep_stats.json", stats)
+    write_tables(sweep, rundir.points_dir(out), tables)
+    summ = point_summaries(sweep, rundir.points_dir(out))
+    rundir.write_json(tables / rundir.SWEEP_STATS, stats)
     if tables != out:
         echo(f"{out} holds the tables of sweep {sweep_in(out)!r}: this sweep's tables are in {tables}")
     return summ, stats
@@ -39,7 +40,7 @@ def run_sweep(
 
 def sweep_in(out: Path) -> str | None:
     """The name of the sweep whose tables `out` holds (its sweep.yaml), if any."""
-    f = Path(out) / "sweep.yaml"
+    f = Path(out) / rundir.SWEEP_FILE
     try:
         return (yaml.safe_load(f.read_text()) or {}).get("name") if f.exists() else None
     except (OSError, yaml.YAMLError):
@@ -52,4 +53,4 @@ def tables_dir(sweep: Sweep, out: str | Path) -> Path:
     `out/tables/<name>/`, so that neither overwrites the other's results.csv and summary.csv."""
     out = Path(out)
     other = sweep_in(out)
-    return out if other in (None, sweep.name) else out / "tables" / sweep.name
+    return out if other in (None, sweep.name) else out / rundir.SWEEP_TABLES / sweep.name

@@ -3,20 +3,26 @@ markdown report and Fig. 11-20 (drawn by `fedjax_nav.analysis.thesis_figures`)."
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from fedjax_nav import rundir
 from fedjax_nav.analysis.sweeps import finished
+from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.configs import CONFIG_DIR, SWEEP_DIR
-from fedjax_nav.training import sweep as sw
+
+
+def experiment_dir(out: str | Path, name: str) -> Path:
+    """REPORT/experiments/<name>/: the tables of one experiment (`analysis.sweeps.write_tables`)."""
+    return Path(out) / "experiments" / name
+
 
 # ----------------------------------------------------------------------------- numbers
 
 
-def by_setting(s: sw.Sweep, points_dir: Path) -> pd.DataFrame:
+def by_setting(s: Sweep, points_dir: Path) -> pd.DataFrame:
     """The sweep's last-25 numbers grouped by its `thesis.by` key (gamma: over the four methods),
     mean and std over every seed of every point in the group, with the thesis's numbers."""
     by = s.thesis.get("by") or (s.keys[0] if s.keys and s.keys[0] != "base" else "method")
@@ -24,7 +30,7 @@ def by_setting(s: sw.Sweep, points_dir: Path) -> pd.DataFrame:
 
     rows = []
     for p, js in finished(s, points_dir):
-        pe = per_episode(pd.read_csv(points_dir / p.id / "metrics.csv"))
+        pe = per_episode(rundir.read_metrics(points_dir / p.id))
         E = int(pe["episode"].max()) + 1
         tail = pe[pe["episode"] >= E - min(25, E)].groupby("seed")[["success", "reward"]].mean()
         key = p.cfg.method if by == "method" else p.values[by]
@@ -81,7 +87,7 @@ def _t(x) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:g}"
 
 
-def experiment_markdown(s: sw.Sweep, table: pd.DataFrame) -> str:
+def experiment_markdown(s: Sweep, table: pd.DataFrame) -> str:
     lines = [f"### {s.name}: {s.description}", ""]
     if table.empty:
         return "\n".join(lines + ["(not run)", ""])
@@ -137,7 +143,7 @@ def table2(sweeps_dir: Path = SWEEP_DIR) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["parameter", "paper (configs/paper/flddpg.yaml)", "thesis (configs/thesis/)"])
 
 
-def table3(s: sw.Sweep, points_dir: Path) -> pd.DataFrame:
+def table3(s: Sweep, points_dir: Path) -> pd.DataFrame:
     rows = []
     for p, js in finished(s, points_dir):
         ref = (s.thesis.get("n_comm") or {}).get(p.cfg.method)
@@ -197,7 +203,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
     from fedjax_nav.analysis import thesis_figures as tf
 
     def res(name):
-        f = out / "experiments" / name / "results.csv"
+        f = experiment_dir(out, name) / rundir.SWEEP_RESULTS
         return pd.read_csv(f) if name in sweeps and f.exists() and f.stat().st_size > 1 else pd.DataFrame()
 
     paths = []
@@ -304,7 +310,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
     return paths
 
 
-def _thesis_eval(s: sw.Sweep) -> pd.DataFrame:
+def _thesis_eval(s: Sweep) -> pd.DataFrame:
     t = s.thesis
     methods = sorted(set().union(*[set((t.get(k) or {})) for k in ("eval_success", "eval_time", "eval_efficiency")]))
     return pd.DataFrame(
@@ -318,8 +324,8 @@ def _thesis_eval(s: sw.Sweep) -> pd.DataFrame:
 
 
 def _point_wall(d: Path) -> float:
-    f = d / "summary.json"
-    return float(json.loads(f.read_text()).get("wall_s") or 0.0) if f.exists() else 0.0
+    f = d / rundir.SUMMARY
+    return float(rundir.read_json(f).get("wall_s") or 0.0) if f.exists() else 0.0
 
 
 def report_markdown(sweeps, tables, t2, t3, evals, info) -> str:

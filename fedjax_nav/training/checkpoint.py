@@ -26,6 +26,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 from absl import logging as absl_logging
 
+from fedjax_nav import rundir
 from fedjax_nav.rundir import WriteError
 
 
@@ -44,7 +45,7 @@ class Checkpointer:
         # callbacks into orbax's closed event loop are dropped as well.
         _silence()
         _quiet_abandoned_reads()
-        self.dir = Path(run_dir).absolute() / "checkpoints"
+        self.dir = Path(run_dir).absolute() / rundir.CHECKPOINTS
         alone = {}
         if process is not None:
             if process == 0:

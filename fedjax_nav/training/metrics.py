@@ -10,6 +10,7 @@ import pandas as pd
 
 from fedjax_nav.config import Config
 from fedjax_nav.federated.comm import bytes_per_round, communication
+from fedjax_nav.rundir import success_last_per_seed
 from fedjax_nav.training.trainer import Trainer
 
 
@@ -75,13 +76,6 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
     return df
 
 
-def success_last_per_seed(df: pd.DataFrame, last: int = 25) -> pd.Series:
-    """Per seed: the share of the frame's robots that reached the goal, per episode, averaged over
-    the run's last `last` episodes (pass the rows of some robots for their success alone)."""
-    tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
-    return tail.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean()
-
-
 def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -> dict:
     """Success proportion and reward over the last `last` episodes: mean and std over seeds."""
     per_ep = df.groupby(["seed", "episode"]).agg(success=("reached_goal", "mean"), reward=("reward", "mean"))
@@ -125,10 +119,6 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
         "fed_bytes_sent": float(sent.mean()) if sent is not None else 0.0,  # per seed, what was actually sent
         "fed_skipped_rounds": float(skipped.mean()) if skipped is not None else 0.0,  # per seed
     }
-
-
-# Fields `train --resume RUN --allow-config-change` may change against the config fingerprinted in
-# the run's checkpoint (none changes the program or the numbers of a finished episode).
 
 
 class DivergenceError(RuntimeError):

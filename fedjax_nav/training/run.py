@@ -7,15 +7,18 @@ layer above (`fedjax_nav.analysis.plots.draw_run`, called by `fedjax-nav train`)
 
 from __future__ import annotations
 
+import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav import rundir
-from fedjax_nav.config import Config
+from fedjax_nav.config import Config, ConfigError
 from fedjax_nav.training.hparams import HParams, hparams_from_config
 from fedjax_nav.training.metrics import (  # noqa: F401  (re-exported: the run API)
     DivergenceError,
@@ -29,6 +32,8 @@ from fedjax_nav.training.metrics import (  # noqa: F401  (re-exported: the run A
 from fedjax_nav.training.tblog import TensorBoardLog
 from fedjax_nav.training.trainer import Trainer
 
+# Fields `train --resume RUN --allow-config-change` may change against the config fingerprinted in
+# the run's checkpoint (none changes the program or the numbers of a finished episode).
 RESUME_CHANGEABLE = (
     "run.episodes",
     "run.checkpoint_every",
@@ -63,7 +68,7 @@ def train(
     available memory; `ResourceError` naming the field), then `out` is locked (`rundir.RunLock`)
     for the whole run. A new run refuses a folder holding results unless `overwrite` (they are
     removed first); a resumed one refuses a config that differs from the one saved in the
-    checkpoint, except `RESUME_CHANGEABLE` fields with `allow_config_change`.
+    checkpoint, except `RESUME_CHANGEABLE` fields with `allow_config_change` (`refuse_config_change`).
     """
     from fedjax_nav.training import parallel
     from fedjax_nav.training.resources import check_memory
@@ -84,10 +89,31 @@ def train(
         return _train(cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer)
 
 
+def refuse_config_change(changed, allow_config_change: bool, path: str | Path, against: str) -> None:
+    """The one refusal of a resume with a changed config (`fedjax-nav train --resume` before it
+    loads anything, `train(resume=True)` against the checkpoint): `ConfigError` (exit 2) naming
+    `path`, what it was compared `against` and every field of `changed` (dotted names) that
+    `allow_config_change` does not permit: all of them without it, those outside
+    `RESUME_CHANGEABLE` with it. Returns when nothing is refused."""
+    refused = [k for k in changed if not (allow_config_change and k in RESUME_CHANGEABLE)]
+    if not refused:
+        return
+    sections: dict[str, list[str]] = {}
+    for k in RESUME_CHANGEABLE:
+        sections.setdefault(k.split(".")[0], []).append(k.split(".", 1)[1])
+    permitted = ", ".join(f"{s}.{{{', '.join(names)}}}" for s, names in sections.items())  # run.{episodes, ...}
+    hint = (
+        f"--allow-config-change permits {permitted} only"
+        if allow_config_change
+        else f"restore the config, start a new run, or pass --allow-config-change (it permits {permitted} only)"
+    )
+    raise ConfigError(f"{path}: differs from {against} in {', '.join(refused)}; resuming would mix two runs: {hint}")
+
+
 def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool) -> None:
     """The config to resume with against the one fingerprinted in the latest checkpoint."""
-    from fedjax_nav.config import ConfigError, diff, from_dict
-    from fedjax_nav.training.checkpoint import CheckpointError, fingerprint
+    from fedjax_nav.config import diff, from_dict
+    from fedjax_nav.training.checkpoint import fingerprint
 
     step = ckpt.latest()
     saved = ckpt.saved_config(step)  # CheckpointError when there is no checkpoint
@@ -98,19 +124,8 @@ def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool) ->
         except ConfigError:  # saved by another version of the code: compare what it holds
             now = to_dict_flat(cfg)
             changed = [k for k, v in to_dict_flat(saved).items() if k in now and now[k] != v]
-        refused = [k for k in changed if not (allow_config_change and k in RESUME_CHANGEABLE)]
-        if refused:
-            hint = (
-                f"--allow-config-change permits only {', '.join(RESUME_CHANGEABLE)}"
-                if allow_config_change
-                else f"restore the file, start a new run, or pass --allow-config-change (only for "
-                f"{', '.join(RESUME_CHANGEABLE)})"
-            )
-            sha = fingerprint(saved)[:12]
-            raise CheckpointError(
-                f"{out / rundir.CONFIG}: differs from the config saved in {src} (sha1 {sha}) in "
-                f"{', '.join(refused)}; resuming would mix two runs: {hint}"
-            )
+        against = f"the config saved in {src} (sha1 {fingerprint(saved)[:12]})"
+        refuse_config_change(changed, allow_config_change, out / rundir.CONFIG, against)
     if cfg.run.episodes < step:
         raise ConfigError(
             f"{out / rundir.CONFIG}: run.episodes ({cfg.run.episodes}) is below the {step} episodes already done"
@@ -129,6 +144,29 @@ def to_dict_flat(cfg) -> dict:
     }
 
 
+# ----------------------------------------------------------------------------- the run, step by step
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What every step of one run reads: its config, its folder, the trainer, the mesh (or None),
+    whether this process writes files (process 0), and the run's `Checkpointer`."""
+
+    cfg: Config
+    out: Path
+    trainer: Trainer
+    mesh: Any
+    writer: bool
+    ckpt: Any
+
+    def write_metrics(self, metrics: dict):
+        """The metrics table of episodes 0.. (leaves [seeds, episodes, ...]); metrics.csv by the writer."""
+        df = metrics_frame(metrics, self.cfg, self.trainer)
+        if self.writer:
+            rundir.write_metrics(self.out, df)
+        return df
+
+
 def _train(
     cfg: Config,
     out: Path,
@@ -141,15 +179,26 @@ def _train(
     allow_config_change: bool,
     writer: bool,
 ) -> dict:
-    import signal
+    """prepare (refusals, checkpoints) -> init -> restore -> the loop of chunks (a divergence:
+    salvage what is good) -> finish (summary.json, params.npz)."""
+    run = _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer)
+    hp = hparams_from_config(cfg) if hp is None else hp
+    states = trainer.init_seeds(jnp.arange(cfg.run.seeds) + cfg.run.seed, hp, mesh=mesh)
+    states, metrics, start, all_df = _restore(run, states, resume)
+    if writer:
+        rundir.write_config(out, cfg)
+    chunk = trainer.compiled_chunk(mesh=mesh, states=states, hp=hp)
+    t0 = time.time()
+    states, all_df, timings = _loop(run, chunk, states, hp, metrics, start, all_df, progress)
+    return _finish(run, states, all_df, {"wall_s": time.time() - t0, **timings, "resumed_from_episode": start})
 
-    from tqdm.auto import tqdm
 
-    from fedjax_nav.config import to_dict
+def _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer) -> _Run:
+    """A new run refuses a folder holding results (or clears them, `overwrite`); the checkpoints
+    are opened; a resumed run refuses a config that differs from its checkpoint's."""
     from fedjax_nav.training import parallel
     from fedjax_nav.training.checkpoint import Checkpointer
 
-    write = rundir.atomic_write if writer else (lambda path, fn: None)
     if writer and not resume and rundir.results_in(out):  # (other processes: process 0 may have begun)
         if not overwrite:
             raise FileExistsError(
@@ -160,41 +209,73 @@ def _train(
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints, process=parallel.checkpoint_process(mesh))
     if resume:
         _check_resumable(ckpt, cfg, out, allow_config_change)
-    hp = hparams_from_config(cfg) if hp is None else hp
-    seeds = jnp.arange(cfg.run.seeds) + cfg.run.seed
-    states = trainer.init_seeds(seeds, hp, mesh=mesh)
-    K, metrics, start = cfg.run.chunk_episodes, None, 0
-    if resume:
-        restored, metrics = ckpt.restore(parallel.checkpoint_template(states, mesh))
-        states = parallel.from_checkpoint(restored, states, mesh)
-        start = int(ckpt.latest())
-        all_df = metrics_frame(metrics, cfg, trainer)  # also when the run had already finished
-        write(out / rundir.METRICS, lambda p: all_df.to_csv(p, index=False))
-    elif ckpt.latest() is not None:
-        raise FileExistsError(f"{out}: already holds checkpoints; resume it with --resume {out} or pick another --out")
-    if writer:
-        rundir.write_config(out, cfg)
-    chunk = trainer.compiled_chunk(mesh=mesh, states=states, hp=hp)
+    return _Run(cfg, out, trainer, mesh, writer, ckpt)
 
-    interrupted = []
-    old_handler = signal.getsignal(signal.SIGINT)
 
-    def on_sigint(signum, frame):
-        if interrupted:  # second Ctrl-C: stop now
-            signal.signal(signal.SIGINT, old_handler)
+def _restore(run: _Run, states, resume: bool):
+    """(states, metrics, first episode, metrics table): a resumed run's latest checkpoint, its
+    metrics.csv written again from it (also when the run had already finished); a new run's
+    `states` as they are (refusing a folder that holds checkpoints)."""
+    from fedjax_nav.training import parallel
+
+    if not resume:
+        if run.ckpt.latest() is not None:
+            raise FileExistsError(
+                f"{run.out}: already holds checkpoints; resume it with --resume {run.out} or pick another --out"
+            )
+        return states, None, 0, None
+    restored, metrics = run.ckpt.restore(parallel.checkpoint_template(states, run.mesh))
+    states = parallel.from_checkpoint(restored, states, run.mesh)
+    return states, metrics, int(run.ckpt.latest()), run.write_metrics(metrics)
+
+
+class _DeferredInterrupt:
+    """While installed, the first Ctrl-C only sets `caught` (the chunk finishes, a checkpoint is
+    saved, then `Interrupted`); a second one restores the previous handler and stops at once."""
+
+    def __init__(self):
+        self.caught = False
+        self.previous = signal.getsignal(signal.SIGINT)
+        signal.signal(signal.SIGINT, self._on_sigint)
+
+    def _on_sigint(self, signum, frame):
+        if self.caught:
+            signal.signal(signal.SIGINT, self.previous)
             raise KeyboardInterrupt
-        interrupted.append(True)
+        self.caught = True
 
-    signal.signal(signal.SIGINT, on_sigint)
-    t0, t_compile, ckpt_s = time.time(), None, 0.0
+    def restore(self) -> None:
+        signal.signal(signal.SIGINT, self.previous)
+
+
+def _append(metrics: dict | None, m: dict) -> dict:
+    """Episodes `m` after `metrics` (leaves [seeds, episodes, ...])."""
+    return m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
+
+
+def _loop(run: _Run, chunk, states, hp: HParams, metrics, start: int, all_df, progress: bool):
+    """The chunks from episode `start` to `run.episodes`: each one checked (`check_finite`; a
+    divergence ends the run through `_salvage`), appended to the metrics, written (metrics.csv,
+    TensorBoard), shown on the progress bar and checkpointed every `run.checkpoint_every`
+    episodes, at the end and after a Ctrl-C (then `Interrupted`). Returns (states, metrics table,
+    timings)."""
+    from tqdm.auto import tqdm
+
+    from fedjax_nav.config import to_dict
+    from fedjax_nav.training import parallel
+
+    cfg, ckpt = run.cfg, run.ckpt
+    K, every = cfg.run.chunk_episodes, cfg.run.checkpoint_every
+    sigint = _DeferredInterrupt()
+    t_compile, ckpt_s = None, 0.0
     bar = tqdm(
         total=cfg.run.episodes,
         initial=start,
         desc=f"{cfg.method} x{cfg.run.seeds} seeds",
         unit="ep",
-        disable=not (progress and writer),
+        disable=not (progress and run.writer),
     )
-    tb = TensorBoardLog(out) if cfg.run.tensorboard and writer else None
+    tb = TensorBoardLog(run.out) if cfg.run.tensorboard and run.writer else None
     try:
         for first in range(start, cfg.run.episodes, K):
             tc = time.time()
@@ -203,74 +284,75 @@ def _train(
             if t_compile is None:
                 t_compile = time.time() - tc
             try:
-                check_finite(m, first, cfg, trainer)
-            except DivergenceError as err:  # keep every good episode, say what is kept
-                good = err.episode - first  # episodes of this chunk before the bad one
-                if good > 0:
-                    m = {k: v[:, :good] for k, v in m.items()}
-                    metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
-                n = 0 if metrics is None else int(metrics["reward"].shape[1])
-                if n:
-                    good_df = metrics_frame(metrics, cfg, trainer)
-                    write(out / rundir.METRICS, lambda p, d=good_df: d.to_csv(p, index=False))
-                ckpt.wait()
-                step = ckpt.latest()
-                kept = (
-                    f"the last good checkpoint (episode {step}) is kept"
-                    if step is not None
-                    else "no checkpoint was saved yet (nothing to resume)"
-                )
-                kept += f"; metrics.csv holds episodes 0-{n - 1}" if n else "; no episode finished"
-                raise DivergenceError(f"{err}; {kept}", err.episode) from None
-            metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
-            all_df = metrics_frame(metrics, cfg, trainer)
-            write(out / rundir.METRICS, lambda p, d=all_df: d.to_csv(p, index=False))
+                check_finite(m, first, cfg, run.trainer)
+            except DivergenceError as err:
+                raise _salvage(run, err, first, metrics, m) from None
+            metrics = _append(metrics, m)
+            all_df = run.write_metrics(metrics)
             done = first + K
             if tb is not None:  # live scalars of this chunk's episodes
                 tb.episodes(all_df[all_df.episode >= first])
             last = all_df[all_df.episode == done - 1]
             bar.set_postfix(success=f"{last.reached_goal.mean():.2f}", reward=f"{last.reward.mean():.3f}")
             bar.update(K)
-            every = cfg.run.checkpoint_every
-            if (every and done % every == 0) or done == cfg.run.episodes or interrupted:
+            if (every and done % every == 0) or done == cfg.run.episodes or sigint.caught:
                 tk = time.time()
-                view = parallel.checkpoint_view(states, mesh)  # a copy: states get donated next
-                if writer:
+                view = parallel.checkpoint_view(states, run.mesh)  # a copy: states get donated next
+                if run.writer:
                     ckpt.save(done, view, metrics, config=to_dict(cfg))
                 ckpt_s += time.time() - tk
-            if interrupted and done < cfg.run.episodes:
+            if sigint.caught and done < cfg.run.episodes:
                 ckpt.wait()
-                raise Interrupted(
-                    f"interrupted after episode {done}; checkpoint saved. Resume with: fedjax-nav train --resume {out}"
-                )
+                resume_with = f"fedjax-nav train --resume {run.out}"
+                raise Interrupted(f"interrupted after episode {done}; checkpoint saved. Resume with: {resume_with}")
     finally:
         bar.close()
         if tb is not None:
             tb.close()
-        signal.signal(signal.SIGINT, old_handler)
+        sigint.restore()
         tk = time.time()
         ckpt.close()
         ckpt_s += time.time() - tk
-    wall = time.time() - t0
-    summary = summarize(all_df, cfg, trainer)
-    summary.update(
-        {
-            "wall_s": wall,
-            "first_chunk_s_incl_compile": t_compile,
-            "checkpoint_s": ckpt_s,
-            "resumed_from_episode": start,
-            "jax_backend": jax.default_backend(),
-        }
+    return states, all_df, {"first_chunk_s_incl_compile": t_compile, "checkpoint_s": ckpt_s}
+
+
+def _salvage(run: _Run, err: DivergenceError, first: int, metrics: dict | None, m: dict) -> DivergenceError:
+    """A divergence in the chunk from episode `first` (its metrics `m`): keep every good episode
+    (those before the bad one, in metrics.csv) and the last good checkpoint; the error to raise
+    says what is kept."""
+    good = err.episode - first  # episodes of this chunk before the bad one
+    if good > 0:
+        metrics = _append(metrics, {k: v[:, :good] for k, v in m.items()})
+    n = 0 if metrics is None else int(metrics["reward"].shape[1])
+    if n:
+        run.write_metrics(metrics)
+    run.ckpt.wait()
+    step = run.ckpt.latest()
+    kept = (
+        f"the last good checkpoint (episode {step}) is kept"
+        if step is not None
+        else "no checkpoint was saved yet (nothing to resume)"
     )
+    kept += f"; metrics.csv holds episodes 0-{n - 1}" if n else "; no episode finished"
+    return DivergenceError(f"{err}; {kept}", err.episode)
+
+
+def _finish(run: _Run, states, all_df, timings: dict) -> dict:
+    """The summary (in every process: the final gather is a collective) with `timings`; by the
+    writer, summary.json and params.npz (without the padding clients)."""
+    from fedjax_nav.training import parallel
+
+    summary = summarize(all_df, run.cfg, run.trainer)
+    summary.update({**timings, "jax_backend": jax.default_backend()})
+    mesh = run.mesh
     if mesh is not None:
         summary.update(
             {"devices": int(mesh.size), "shard": ",".join(mesh.axis_names), "processes": jax.process_count()}
         )
     final = states if mesh is None else parallel.checkpoint_view(states, mesh)  # every process joins the gather
-    if not writer:
+    if not run.writer:
         return summary
-    rundir.write_json(out / rundir.SUMMARY, summary)
-    rundir.write_params(
-        out, jax.tree.map(lambda x: x[:, : trainer.n_real], final.agents) if trainer.pad else final.agents
-    )  # without the padding clients
+    rundir.write_json(run.out / rundir.SUMMARY, summary)
+    agents = jax.tree.map(lambda x: x[:, : run.trainer.n_real], final.agents) if run.trainer.pad else final.agents
+    rundir.write_params(run.out, agents)  # without the padding clients
     return summary

@@ -21,7 +21,9 @@ from pathlib import Path
 
 import pandas as pd
 
-DIR = "tensorboard"
+from fedjax_nav import rundir
+
+DIR = rundir.TENSORBOARD
 _ID_COLUMNS = {"episode", "seed", "robot", "world"}
 _RUN_WIDE = ("epsilon", "fed_events", "fed_bytes")
 

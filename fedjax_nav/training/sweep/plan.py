@@ -11,8 +11,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from fedjax_nav.config.sweepfile import SweepError
 from fedjax_nav.training.hparams import HParams, hparams_from_config, stack_hparams, varying_fields
-from fedjax_nav.training.sweep.spec import STATE_BYTES_FACTOR, Job, SweepError, group_key
+from fedjax_nav.training.sweep.spec import STATE_BYTES_FACTOR, Job, group_key
 from fedjax_nav.training.trainer import Trainer
 
 

@@ -3,7 +3,6 @@ finished point written as a run directory (`points/<id>/`)."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import time
 from dataclasses import dataclass
@@ -28,8 +27,8 @@ def is_done(points_dir: Path, job: Job) -> bool:
     if not f.exists():
         return False
     try:
-        s = json.loads(f.read_text())
-    except (OSError, json.JSONDecodeError):
+        s = rundir.read_json(f)
+    except rundir.RunDirError:  # unreadable (a foreign or damaged file): train the point again
         return False
     return s.get("seeds", 0) >= job.cfg.run.seeds and s.get("episodes_done") == job.cfg.run.episodes
 
@@ -171,7 +170,7 @@ def run_jobs(
     mesh = parallel.make_mesh(devices, "seeds", jax.local_devices()) if devices > 1 else None
 
     out = Path(out)
-    points_dir, batches_dir = out / "points", out / "batches"
+    points_dir, batches_dir = rundir.points_dir(out), rundir.batches_dir(out)
     points_dir.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if not is_done(points_dir, j)]
     skipped = len(jobs) - len(todo)
