@@ -5,6 +5,11 @@ static analysis with griffe: nothing is imported), plus `reference/SUMMARY.md` f
 mkdocs-literate-nav. Private modules (`_name.py`, `_pkg/`) and `__main__` are skipped. A module
 moved or renamed needs no docs edit; a broken cross-reference in a docstring still fails
 `mkdocs build --strict`.
+
+The nav under "API reference" is the package's page first, then its subpackages and modules as
+siblings (not all nested under one `fedjax_nav` entry: Material's `navigation.indexes` takes a
+section's first index page as the section's own link and would hide everything under it).
+SUMMARY.md only feeds the nav: it is excluded from the site, so no `reference/SUMMARY/` page.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mkdocs_gen_files
+from mkdocs.structure.files import InclusionLevel
 
 PACKAGE = "fedjax_nav"
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,10 +41,15 @@ for path in sorted((ROOT / PACKAGE).rglob("*.py")):
         doc = Path(*parts).with_suffix(".md")
     if any(p.startswith("_") for p in parts):
         continue
-    nav[parts] = doc.as_posix()
+    if len(parts) > 1:  # the package's own page heads the section (below)
+        nav[parts[1:]] = doc.as_posix()
     with mkdocs_gen_files.open(Path("reference", doc), "w") as fd:
         fd.write(f"# `{'.'.join(parts)}`\n\n::: {'.'.join(parts)}\n")
     mkdocs_gen_files.set_edit_path(Path("reference", doc), path.relative_to(ROOT))
 
-with mkdocs_gen_files.open("reference/SUMMARY.md", "w") as fd:
+SUMMARY = "reference/SUMMARY.md"
+with mkdocs_gen_files.open(SUMMARY, "w") as fd:
+    fd.write(f"* [{PACKAGE}]({PACKAGE}/index.md)\n")
     fd.writelines(nav.build_literate_nav())
+# literate-nav still reads an excluded file; mkdocs builds no page from it
+mkdocs_gen_files.FilesEditor.current().files.get_file_from_path(SUMMARY).inclusion = InclusionLevel.EXCLUDED

@@ -1,13 +1,14 @@
 """`fedjax-nav reproduce --scale ci`: every experiment of chapter 4 at a reduced scale, into a
 report folder with every figure and table; a second invocation trains nothing; the analysis
-notebook runs headless on the report.
+notebook runs headless on the report, and on a fresh clone (no runs, nothing set: the tables
+committed under results/).
 
 The reduced programme (54 distinct configs x 2 seeds, 9 compiled groups, 8 evaluations) is run
 once per module: about 2-4 minutes on a 2-core CPU, most of it compilation.
 """
 
 import json
-import os
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -113,23 +114,38 @@ def test_unknown_experiment_is_an_input_error(capsys):
     assert "nope" in capsys.readouterr().err
 
 
-def test_the_analysis_notebook_runs_on_the_report(report):
+def _run_notebook(path: Path):
+    """Execute the analysis notebook at `path`, its kernel in the notebook's folder; returns
+    everything it printed or displayed as text."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
-    out, _ = report
-    nb = nbformat.read(ROOT / "notebooks" / "analysis.ipynb", as_version=4)
+    nb = nbformat.read(path, as_version=4)
     assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), "commit the notebook without outputs"
-    old = os.environ.get("FEDJAX_NAV_RESULTS")
-    os.environ["FEDJAX_NAV_RESULTS"] = str(out)
-    try:
-        nbclient.NotebookClient(
-            nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(ROOT / "notebooks")}}
-        ).execute()
-    finally:
-        if old is None:
-            os.environ.pop("FEDJAX_NAV_RESULTS")
-        else:
-            os.environ["FEDJAX_NAV_RESULTS"] = old
-    printed = "".join(o.get("text", "") for c in nb.cells for o in c.get("outputs", []))
-    assert "report" in printed and "fig20_eval_improvements.png" in printed
+    nbclient.NotebookClient(
+        nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
+    ).execute()
+    outputs = [o for c in nb.cells for o in c.get("outputs", [])]
+    return "".join(o.get("text", "") + o.get("data", {}).get("text/plain", "") for o in outputs)
+
+
+def test_the_analysis_notebook_runs_on_a_fresh_clone(tmp_path, monkeypatch):
+    # a clone's files the notebook may read (notebooks/, results/), and no runs/ folder
+    clone = tmp_path / "clone"
+    shutil.copytree(ROOT / "results", clone / "results")
+    (clone / "notebooks").mkdir()
+    shutil.copy(ROOT / "notebooks" / "analysis.ipynb", clone / "notebooks")
+    monkeypatch.delenv("FEDJAX_NAV_RESULTS", raising=False)  # the kernel inherits this environment
+    monkeypatch.chdir(clone)
+    printed = _run_notebook(clone / "notebooks" / "analysis.ipynb")
+    assert f"committed {clone / 'results'}" in printed  # neither runs nor the variable: the committed tables
+    assert "redrew 13 experiment tables" in printed  # every experiment file of chapter 4
+    assert "fed_period_steps" in printed and "thesis_success" in printed  # the per-setting table
+    assert "flsddpg" in printed and "n_comm (Eq. 25)" in printed  # evaluation and Table 3
+
+
+def test_the_analysis_notebook_runs_on_the_report(report, monkeypatch):
+    out, _ = report
+    monkeypatch.setenv("FEDJAX_NAV_RESULTS", str(out))  # a user's own report
+    printed = _run_notebook(ROOT / "notebooks" / "analysis.ipynb")
+    assert f"report {out}" in printed and "fig20_eval_improvements.png" in printed
     assert "redrew 13 experiment tables" in printed  # results/: every experiment file of chapter 4

@@ -64,12 +64,23 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
     colors = {label: cmap(i % cmap.N) for i, label in enumerate(runs)}
     for label, df in runs.items():
         for ax, metric, name in zip(axes, ["success", "reward"], ["success proportion", "mean reward per step"]):
-            ep, mu, sd = curves(df, metric, window)
-            ax.plot(ep + 1, mu, label=label or None, color=colors[label])
-            ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.2, color=colors[label])
             ax.set_xlabel("episode")
             ax.set_ylabel(f"{name} ({window}-ep SMA)")
             ax.grid(alpha=0.3)
+            if df.empty:  # a run stopped before its first episode ended: say so rather than draw bare axes
+                ax.text(
+                    0.5, 0.5, "no finished episode: nothing to draw", ha="center", va="center", transform=ax.transAxes
+                )
+                continue
+            ep, mu, sd = curves(df, metric, window)
+            # a line through one episode draws nothing: markers show short curves, error bars their spread
+            few = len(ep) < 2
+            ax.plot(ep + 1, mu, marker="o" if few else None, label=label or None, color=colors[label])
+            if few:
+                ax.errorbar(ep + 1, mu, yerr=sd, fmt="none", capsize=4, color=colors[label])
+                ax.set_xticks(ep + 1)  # whole episodes, not 0.96 ... 1.04
+            else:
+                ax.fill_between(ep + 1, mu - sd, mu + sd, alpha=0.2, color=colors[label])
     probe = False
     for label, df in runs.items():  # run.eval_every: greedy success on the held-out probe, beside training success
         if "eval_success" in df and df["eval_success"].notna().any():

@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 
+from fedjax_nav import __version__
 from fedjax_nav.cli.commands import (  # noqa: F401  (UserError: the commands' input error)
     UserError,
     _auto_seed_devices,
@@ -50,16 +51,39 @@ def _batch_flags(p: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="fedjax-nav",
-        description=__doc__.splitlines()[0],
-        epilog="exit codes: 0 done, 2 input error (one line naming the file and field), "
-        "3 divergence, 4 failed write (e.g. a full disk), 130 interrupted "
-        "(docs/reliability.md)",
+def _device_flags(p: argparse.ArgumentParser) -> None:
+    """The flags of `train` that spread one run over devices and processes."""
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        metavar="N",
+        help="spread the run over N devices (on CPU: N forced host devices); default one, or every "
+        "device of every process with --distributed",
     )
-    sub = parser.add_subparsers(dest="command", required=True)
+    p.add_argument(
+        "--shard",
+        choices=["clients", "seeds"],
+        default="clients",
+        help="the axis spread over the devices (default clients: robots; SEDDPG/SNDDPG: seeds)",
+    )
+    p.add_argument(
+        "--distributed",
+        action="store_true",
+        help="one of several processes (jax.distributed); start one per host with the same flags",
+    )
+    p.add_argument(
+        "--coordinator",
+        default=None,
+        metavar="HOST:PORT",
+        help="process 0's address (default $JAX_COORDINATOR_ADDRESS)",
+    )
+    p.add_argument("--num-processes", type=int, default=None, help="default $JAX_NUM_PROCESSES")
+    p.add_argument("--process-id", type=int, default=None, help="default $JAX_PROCESS_ID")
 
+
+def add_train(sub) -> None:
+    """`train`: one config, all robots and seeds in one program; resume, devices, processes."""
     p = sub.add_parser("train", help="train a method (all robots and seeds in one program)")
     p.add_argument("--config", required=False, default=None, help="YAML config (e.g. configs/thesis/flddpg.yaml)")
     p.add_argument(
@@ -101,35 +125,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
     )
-    p.add_argument(
-        "--devices",
-        type=int,
-        default=None,
-        metavar="N",
-        help="spread the run over N devices (on CPU: N forced host devices); default one, or every "
-        "device of every process with --distributed",
-    )
-    p.add_argument(
-        "--shard",
-        choices=["clients", "seeds"],
-        default="clients",
-        help="the axis spread over the devices (default clients: robots; SEDDPG/SNDDPG: seeds)",
-    )
-    p.add_argument(
-        "--distributed",
-        action="store_true",
-        help="one of several processes (jax.distributed); start one per host with the same flags",
-    )
-    p.add_argument(
-        "--coordinator",
-        default=None,
-        metavar="HOST:PORT",
-        help="process 0's address (default $JAX_COORDINATOR_ADDRESS)",
-    )
-    p.add_argument("--num-processes", type=int, default=None, help="default $JAX_NUM_PROCESSES")
-    p.add_argument("--process-id", type=int, default=None, help="default $JAX_PROCESS_ID")
+    _device_flags(p)
     p.set_defaults(func=_train)
 
+
+def add_evaluate(sub) -> None:
+    """`evaluate`: trained agents in an evaluation world or a held-out suite; several runs compared."""
     p = sub.add_parser("evaluate", help="evaluate trained agents: success, time, efficiency, trajectories")
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="training run directories (several: a comparison)")
     p.add_argument("--world", default="eval", help="evaluation world: shipped name or world file (default eval)")
@@ -161,6 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_evaluate)
 
+
+def add_render(sub) -> None:
+    """`render`: PNGs of playgrounds with a short random-policy trajectory."""
     p = sub.add_parser("render", help="draw playgrounds with a short random-policy trajectory")
     p.add_argument("worlds", nargs="*", help="world names or files (default: every shipped world)")
     p.add_argument("--out", default="runs/render", help="output folder for the PNGs")
@@ -168,6 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_render)
 
+
+def add_sweep(sub) -> None:
+    """`sweep`: one sweep file's grid x seeds, resumable."""
     p = sub.add_parser("sweep", help="train a grid of settings x seeds, one compilation per static group")
     p.add_argument("file", help="sweep file (e.g. configs/sweeps/tau.yaml)")
     p.add_argument("--seeds", type=int, default=None, help="seeds per grid point (default: the file's)")
@@ -176,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     _batch_flags(p)
     p.set_defaults(func=_sweep)
 
+
+def add_reproduce(sub) -> None:
+    """`reproduce`: every experiment of thesis chapter 4 into one report folder."""
     p = sub.add_parser("reproduce", help="every experiment of thesis chapter 4 -> figures, tables, report.md")
     p.add_argument(
         "--scale",
@@ -189,15 +199,25 @@ def build_parser() -> argparse.ArgumentParser:
     _batch_flags(p)
     p.set_defaults(func=_reproduce)
 
+
+def add_bench(sub) -> None:
+    """`bench`: env, train and sweep throughput."""
     p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")
     p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "all"])
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
     p.add_argument("--record", default=None, help="append the results to this markdown file")
     p.set_defaults(func=_bench)
 
+
+def add_export(sub) -> None:
+    """`export`: one trained actor as a numpy or ONNX folder (its flags live beside the exporter)."""
     from fedjax_nav.deploy import export as _export  # argparse only at import: --help stays instant
 
     _export.add_parser(sub)
+
+
+def add_worlds(sub) -> None:
+    """`worlds generate`: one procedural room written as a world file."""
     p = sub.add_parser("worlds", help="procedural rooms: write generated world files (docs/generator.md)")
     wsub = p.add_subparsers(dest="worlds_command", required=True)
     g = wsub.add_parser(
@@ -220,8 +240,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.set_defaults(func=_worlds)
 
+
+def add_configs(sub) -> None:
+    """`configs`: list the shipped configs and sweep files."""
     p = sub.add_parser("configs", help="list the shipped configs and experiment (sweep) files")
     p.set_defaults(func=_configs)
+
+
+# The commands in the order `--help` lists them.
+COMMANDS = (
+    add_train,
+    add_evaluate,
+    add_render,
+    add_sweep,
+    add_reproduce,
+    add_bench,
+    add_export,
+    add_worlds,
+    add_configs,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The `fedjax-nav` parser: the program's flags, then one subparser per command (`COMMANDS`)."""
+    parser = argparse.ArgumentParser(
+        prog="fedjax-nav",
+        description=__doc__.splitlines()[0],
+        epilog="exit codes: 0 done, 2 input error (one line naming the file and field), "
+        "3 divergence, 4 failed write (e.g. a full disk), 130 interrupted "
+        "(docs/reliability.md)",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in COMMANDS:
+        add(sub)
     return parser
 
 

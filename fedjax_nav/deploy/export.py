@@ -189,7 +189,8 @@ def export_run(
             import onnx  # noqa: F401
         except ImportError:
             raise ExportError(
-                "--format onnx needs the onnx package (pip install onnx); --format numpy needs nothing more"
+                '--format onnx needs the onnx package: pip install "fedjax_nav[onnx]"; '
+                "--format numpy needs nothing more"
             ) from None
     out = Path(out)
     if out.exists() and not out.is_dir():

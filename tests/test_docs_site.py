@@ -1,0 +1,54 @@
+"""The documentation site as built (mkdocs.yml, docs/gen_ref_pages.py): every API reference page
+is reachable from the navigation, the literate-nav file is not a page of its own, and fields
+documented by a comment on their line (flax.struct dataclasses) are listed with that comment.
+
+Needs the `docs` extra (CI installs it); skipped without mkdocs. One build, about 5 s.
+"""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("mkdocstrings_handlers.python")
+    out = tmp_path_factory.mktemp("site")
+    env = {**os.environ, "NO_MKDOCS_2_WARNING": "1", "DISABLE_MKDOCS_2_WARNING": "true"}
+    r = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    return out
+
+
+def test_every_reference_page_is_in_the_navigation(site):
+    pages = {p.parent.relative_to(site).as_posix() + "/" for p in (site / "reference").rglob("index.html")}
+    nav = set(re.findall(r'href="(reference/[^"#]*)"', (site / "index.html").read_text()))
+    assert "reference/fedjax_nav/" in pages and "reference/fedjax_nav/env/nav/" in pages
+    assert pages - nav == set(), "reference pages reachable only by search"
+
+
+def test_the_nav_file_is_not_a_page(site):
+    assert not (site / "reference" / "SUMMARY").exists()
+
+
+def test_dataclass_fields_are_listed_with_their_comments(site):
+    html = (site / "reference" / "fedjax_nav" / "env" / "nav" / "index.html").read_text()
+    for field in ("world", "v_max", "goal_radius", "lidar_offset"):
+        assert f'id="fedjax_nav.env.nav.EnvParams.{field}"' in html, field
+    v_max = html[html.index('id="fedjax_nav.env.nav.EnvParams.v_max"') :]
+    v_max = re.sub(r"<[^>]+>", " ", v_max[: v_max.index('id="fedjax_nav.env.nav.EnvParams.omega_max"')])
+    assert "m/s" in v_max  # the field's comment (`v_max: ... # m/s`) is its description
