@@ -266,6 +266,14 @@ def test_an_over_long_config_name_is_exit_2_with_a_short_line():
     assert "world file" in line and len(line) < 600, line
 
 
+def test_an_over_long_sweep_or_run_name_is_exit_2_with_a_short_line():
+    """Every command: a name longer than the OS allows is bad input (exit 2, one short line),
+    not a failed write (exit 4)."""
+    for argv in (["sweep", "a" * 5000], ["evaluate", "r" * 5000], ["export", "r" * 5000, "--out", "x"]):
+        line = cli_one_line(argv)
+        assert len(line) < 600, line
+
+
 def test_long_values_are_cut_in_error_messages(tmp_path):
     path = write(tmp_path / "long.yaml", f"method: {'x' * 500_000}\n")
     msg = refused(load_config, path)

@@ -10,6 +10,7 @@ enough memory), 3 divergence (NaN/Inf or a divergence bound), 4 a failed write (
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 
@@ -314,11 +315,12 @@ def main(argv: list[str] | None = None) -> int:
     from fedjax_nav.training.checkpoint import CheckpointError
     from fedjax_nav.training.run import DivergenceError, Interrupted
     from fedjax_nav.worlds import WorldError
+    from fedjax_nav.worlds.input_files import one_line
 
     try:
         return int(args.func(args) or 0)
     except (UserError, WorldError, ConfigError, CheckpointError, RunDirError) as e:
-        print(f"error: {' '.join(str(e).splitlines())}", file=sys.stderr)  # one line, whatever the input held
+        print(f"error: {one_line(e)}", file=sys.stderr)  # one line, whatever the input held
         return 2
     except DivergenceError as e:  # the message says what was kept
         print(f"error: divergence: {e}", file=sys.stderr)
@@ -329,7 +331,10 @@ def main(argv: list[str] | None = None) -> int:
     except WriteError as e:  # a full disk, permissions: the message says what is kept
         print(f"error: {e}", file=sys.stderr)
         return 4
-    except OSError as e:  # any other failed write
+    except OSError as e:  # any other failed write; a name too long for the OS is bad input
+        if e.errno == errno.ENAMETOOLONG:
+            print(f"error: {one_line(e.filename or '')}: file name too long", file=sys.stderr)
+            return 2
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(
             f"error: {where}{e.strerror or e}; files written before (the last complete checkpoint) are kept",

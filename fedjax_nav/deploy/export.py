@@ -318,10 +318,14 @@ def run_cli(args: argparse.Namespace) -> int:
             raise ExportError(f"--format {args.format!r}: unknown format (choose from {', '.join(FORMATS)})")
         written = export_run(args.run_dir, args.out, args.format, seed, agent, getattr(args, "force", False))
     except ExportError as e:
-        print(f"error: {e}", file=sys.stderr)
+        from fedjax_nav.worlds.input_files import one_line
+
+        print(f"error: {one_line(e)}", file=sys.stderr)
         return 2
     except OSError as e:  # unwritable --out and the like
-        print(f"error: {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
+        from fedjax_nav.worlds.input_files import one_line
+
+        print(f"error: {one_line(f'{e.filename or args.out}: {e.strerror or e}')}", file=sys.stderr)
         return 2
     meta = json.loads(Path(args.out, "meta.json").read_text())
     print(

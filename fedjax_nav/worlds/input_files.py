@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import stat
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,13 @@ class InputError(ValueError):
 def shorten(text: str, limit: int = SHOW_CHARS) -> str:
     """`text`, or its first `limit` characters and how long it was."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text):,} chars)"
+
+
+def one_line(message: Any, limit: int = SHOW_CHARS) -> str:
+    """An error message as one line, each word longer than 120 characters (a path or a value of
+    thousands) cut by `shorten`: what every command prints after "error: "."""
+    text = " ".join(str(message).splitlines())
+    return re.sub(r"\S{121,}", lambda m: shorten(m.group(), limit), text)
 
 
 def show(value: Any, limit: int = SHOW_CHARS) -> str:
