@@ -18,7 +18,7 @@ def test_update_flops_matches_hand_count():
     fa = 2 * (28 * 64 + 2 * 64 * 64 + 64 * 2)
     fc = 2 * (30 * 64 + 2 * 64 * 64 + 64 * 1)
     assert update_flops(28, 64, 3, 512) == 512 * (4 * fa + 6 * fc)
-    assert 95e6 < update_flops(28, 64, 3, 512) < 110e6  # "about 98 MFLOP per agent" (issue 3)
+    assert 95e6 < update_flops(28, 64, 3, 512) < 110e6  # "about 98 MFLOP per agent" (docs/benchmarks.md)
 
 
 def test_sweep_bench_times_one_by_one_and_batched():
