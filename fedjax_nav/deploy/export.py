@@ -155,17 +155,19 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
 
 def select(run, seed: int | None, agent: int | None) -> tuple[int, int, int]:
     """(flat agent index of load_run's axis, seed, net) for --seed / --agent."""
+    from fedjax_nav import rundir
+
     seeds = sorted({int(s) for s in run.agent_seed})
     seed = seeds[0] if seed is None else int(seed)
     agent = 0 if agent is None else int(agent)
     if seed not in seeds:
         raise ExportError(
-            f"{run.run_dir / 'params.npz'}: --seed {seed} is not a seed of this run "
+            f"{run.run_dir / rundir.PARAMS}: --seed {seed} is not a seed of this run "
             f"(seeds: {', '.join(map(str, seeds))})"
         )
     if not 0 <= agent < run.n_nets:
         raise ExportError(
-            f"{run.run_dir / 'params.npz'}: --agent {agent} out of range: {run.cfg.method} has "
+            f"{run.run_dir / rundir.PARAMS}: --agent {agent} out of range: {run.cfg.method} has "
             f"{run.n_nets} network(s) per seed (0..{run.n_nets - 1})"
         )
     flat = int(np.flatnonzero((run.agent_seed == seed) & (run.agent_net == agent))[0])

@@ -20,7 +20,7 @@ from fedjax_nav import rundir
 from fedjax_nav.analysis import generalization as gz
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.config.sweepfile import Sweep
-from fedjax_nav.experiments.thesis_report import _md_table
+from fedjax_nav.experiments.thesis_report import md_table
 
 
 def tables(name: str) -> tuple[str, str, str]:
@@ -71,10 +71,10 @@ def report(
     for fname, df in zip(files, (t, ps, g)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
     md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
-    md += [_md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
+    md += [md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
     md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
     md += ["mean [95% bootstrap interval over training seeds].", ""]
-    md += [_md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
+    md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
     figs = [gz.figure(t, fams, out / f"{name}_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
     curves = gz.probe_curves(sweep, points)

@@ -18,7 +18,7 @@ from fedjax_nav import rundir
 from fedjax_nav.analysis import robustness as rb
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.config.sweepfile import Sweep
-from fedjax_nav.experiments.thesis_report import _md_table
+from fedjax_nav.experiments.thesis_report import md_table
 
 TABLES = ("robustness.csv", "robustness_per_seed.csv", "robustness_verdict.csv")
 FIGURES = ("robustness_learning.png", "robustness_eval.png")
@@ -48,14 +48,14 @@ def markdown(t, v) -> str:
     cols = ["setting", "seeds", "success_honest", "success_honest_std", "success_all", "eval_honest"]
     cols += ["eval_honest_std", "eval_all", "bytes_sent_per_seed", "skipped_rounds", "diverged_seeds", "eval_note"]
     lines = ["# Robustness (docs/robustness.md)", "", "## Acceptance checks on what has been run", ""]
-    lines += [_md_table(v) if len(v) else "(nothing to check yet)", ""]
+    lines += [md_table(v) if len(v) else "(nothing to check yet)", ""]
     for col, what in (("success_honest", "learning success of honest robots"), ("eval_honest", "arena, honest agents")):
         for b in sorted(int(x) for x in set(t.byzantine) if x > 0) if len(t) else []:
             m = rb.matrix(t, col, b)
             lines += [f"## {what}, {b} of 5 Byzantine (mean ± std over seeds)", ""]
-            lines += [_md_table(m.reset_index(names="aggregator")), ""]
+            lines += [md_table(m.reset_index(names="aggregator")), ""]
     lines += ["## Every point", ""]
-    lines += [_md_table(t[cols].round(3)) if len(t) else "(no finished point)", ""]
+    lines += [md_table(t[cols].round(3)) if len(t) else "(no finished point)", ""]
     return "\n".join(lines)
 
 

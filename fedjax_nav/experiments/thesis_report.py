@@ -159,7 +159,7 @@ def table3(s: Sweep, points_dir: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _md_table(df: pd.DataFrame) -> str:
+def md_table(df: pd.DataFrame) -> str:
     cols = list(df.columns)
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for _, r in df.iterrows():
@@ -351,12 +351,12 @@ def report_markdown(sweeps, tables, t2, t3, evals, info) -> str:
             "numbers in docs/reproduction.md.",
             "",
         ]
-    lines += ["## Table 2: hyperparameters", "", _md_table(t2), ""]
+    lines += ["## Table 2: hyperparameters", "", md_table(t2), ""]
     lines += ["## Experiments", ""]
     for s in sweeps:
         lines.append(experiment_markdown(s, tables[s.name]))
     if len(t3):
-        lines += ["## Table 3: communication rounds (Eq. 25)", "", _md_table(t3), ""]
+        lines += ["## Table 3: communication rounds (Eq. 25)", "", md_table(t3), ""]
     for name in ("methods", "improvements"):
         sub = evals[evals["experiment"] == name] if len(evals) else evals
         if len(sub):

@@ -20,12 +20,10 @@ import numpy as np
 from fedjax_nav import rundir
 from fedjax_nav.config import Config, ConfigError
 from fedjax_nav.training.hparams import HParams, hparams_from_config
-from fedjax_nav.training.metrics import (  # noqa: F401  (re-exported: the run API)
+from fedjax_nav.training.metrics import (
     DivergenceError,
     Interrupted,
     check_finite,
-    fed_bytes_per_client,
-    fed_bytes_per_round,
     metrics_frame,
     summarize,
 )
