@@ -1,5 +1,7 @@
-"""Registration with the libraries' registries: gymnasium ("fedjax_nav/Nav-v0", checked by
-gymnasium's and Stable-Baselines3's env checkers) and brax ("fedjax_nav")."""
+"""Registration with the libraries' registries and conventions: gymnasium ("fedjax_nav/Nav-v0",
+checked by gymnasium's and Stable-Baselines3's env checkers; `make_vec` gives the vmap vector
+env), brax ("fedjax_nav", trained by brax's own PPO and SAC as they are) and gymnax's
+conventions on the JAX env (`make`, `default_params`, `observation_space`, `action_space`)."""
 
 from __future__ import annotations
 
@@ -86,6 +88,21 @@ def test_make_without_importing_fedjax_nav_first():
         env={**os.environ, "JAX_PLATFORMS": "cpu"},
     )
     assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
+
+
+def test_make_vec_builds_the_vmap_vector_env(gym):
+    gymnasium, gym_env = gym
+    from fedjax_nav.env.gym_vector import NavVectorEnv
+
+    assert gymnasium.spec(gym_env.ENV_ID).vector_entry_point == gym_env.VECTOR_ENTRY_POINT
+    envs = gymnasium.make_vec("fedjax_nav/Nav-v0", num_envs=3, world="train-2", episode_length=8, v_max=0.5)
+    u = envs.unwrapped
+    assert isinstance(u, NavVectorEnv) and u.num_envs == 3
+    assert u.world_name == "train-2" and u.task.episode_length == 8 and float(u.params.v_max) == 0.5
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (3, 28) and envs.observation_space.contains(obs)
+    sync = gymnasium.make_vec("fedjax_nav/Nav-v0", num_envs=2, vectorization_mode="sync", world="train-2")
+    assert type(sync).__name__ == "SyncVectorEnv" and isinstance(sync.envs[0].unwrapped, gym_env.NavGymEnv)
 
 
 # ----------------------------------------------------------------------------- Stable-Baselines3
@@ -180,3 +197,124 @@ def test_brax_get_environment_and_create():
         ws = wstep(ws, jnp.tile(jnp.array([-1.0, 0.0]), (4, 1)))  # stand still: the time limit
     np.testing.assert_array_equal(ws.done, np.ones(4))
     np.testing.assert_array_equal(ws.info["truncation"], np.ones(4))
+
+
+_BRAX_TRAIN = """
+import functools, json, math
+import jax, jax.numpy as jnp, numpy as np
+
+native = hasattr(jax, "device_put_replicated")
+import fedjax_nav.env.brax_env  # noqa: F401  (registers "fedjax_nav"; the test calls nothing else of ours)
+from brax import envs
+from brax.training.agents.ppo import networks as ppo_networks, train as ppo
+from brax.training.agents.sac import networks as sac_networks, train as sac
+
+env = envs.get_environment("fedjax_nav", worlds=["train-0", "train-2"])
+common = dict(num_timesteps=256, episode_length=32, num_envs=4, num_evals=1, num_eval_envs=2, seed=0)
+ppo_steps, sac_steps = [], []
+ppo_net = functools.partial(
+    ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(8,), value_hidden_layer_sizes=(8,))
+make_policy, params, ppo_m = ppo.train(
+    env, batch_size=4, num_minibatches=4, unroll_length=8, num_updates_per_batch=1, run_evals=False,
+    network_factory=ppo_net, progress_fn=lambda s, m: ppo_steps.append(int(s)), **common)
+action, _ = make_policy(params, deterministic=True)(jnp.zeros((3, env.observation_size)), jax.random.PRNGKey(0))
+_, _, sac_m = sac.train(
+    env, batch_size=16, min_replay_size=64, max_replay_size=512, grad_updates_per_step=1,
+    network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(8,)),
+    progress_fn=lambda s, m: sac_steps.append(int(s)), **common)
+finite = lambda m: all(math.isfinite(float(v)) for v in m.values() if np.ndim(v) == 0)
+print(json.dumps(dict(
+    native=native, shim=jax.device_put_replicated.__module__, ppo_steps=ppo_steps, sac_steps=sac_steps,
+    ppo_keys=sorted(ppo_m), sac_keys=sorted(sac_m), finite=finite(ppo_m) and finite(sac_m),
+    action_shape=list(action.shape), action_max=float(jnp.max(jnp.abs(action))))))
+"""
+
+
+@pytest.mark.slow
+def test_brax_ppo_and_sac_train_the_registered_env_as_they_are():
+    """brax 0.14.2's own ppo.train and sac.train, a few hundred env steps each, on
+    `envs.get_environment("fedjax_nav")` in a clean interpreter that calls no shim: importing
+    the adapter (to register it) is all. Its stdout is the one JSON line (no warp noise)."""
+    pytest.importorskip("brax")
+    out = subprocess.run(
+        [sys.executable, "-c", _BRAX_TRAIN],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == 1, out.stdout
+    r = json.loads(lines[0])
+    if not r["native"]:  # jax >= 0.10: the adapter's import installed the shim
+        assert r["shim"] == "fedjax_nav.env.brax_compat"
+    assert r["ppo_steps"] == [256] and r["sac_steps"] == [256]
+    assert {"training/policy_loss", "training/v_loss"} <= set(r["ppo_keys"])
+    assert {"training/critic_loss", "training/actor_loss", "eval/episode_goal"} <= set(r["sac_keys"])
+    assert r["finite"] and r["action_shape"] == [3, 2] and r["action_max"] <= 1.0
+
+
+# ----------------------------------------------------------------------------- gymnax conventions
+
+
+@pytest.fixture(scope="module")
+def nav():
+    import jax
+
+    from fedjax_nav.env import nav
+
+    env, params = nav.make("Nav-v0", world="train-2", episode_length=16, v_max=0.5)
+    return jax, nav, env, params
+
+
+def test_make_splits_env_and_params_arguments(nav):
+    jax, navm, env, params = nav
+    from fedjax_nav import worlds
+
+    assert isinstance(env, navm.NavEnv) and isinstance(params, navm.EnvParams)
+    assert env.episode_length == 16 and env.mode == "learn" and float(params.v_max) == 0.5
+    np.testing.assert_array_equal(params.world.segments, worlds.load("train-2").segments)
+    env2, p2 = navm.make("fedjax_nav/Nav-v0", world=["train-0", "train-3"], num_beams=12, goal_index=1)
+    assert env2.num_beams == 12 and p2.v_max.shape == (2,) and np.all(np.asarray(p2.goal_index) == 1)
+    d = navm.NavEnv().default_params
+    np.testing.assert_array_equal(d.world.segments, worlds.load("train-0").segments)
+    assert float(d.v_max) == float(navm.EnvParams(world=d.world).v_max)
+    with pytest.raises(ValueError, match="unknown environment 'CartPole-v1'"):
+        navm.make("CartPole-v1")
+    with pytest.raises(TypeError, match="bogus"):
+        navm.make(bogus=1)
+
+
+def test_spaces_hold_what_the_env_gives(nav):
+    jax, _, env, params = nav
+    import jax.numpy as jnp
+
+    obs_space, act_space = env.observation_space(params), env.action_space(params)
+    assert obs_space.shape == (28,) and act_space.shape == (2,) and obs_space.dtype == jnp.float32
+    np.testing.assert_array_equal(act_space.low, [0.0, -1.0])
+    np.testing.assert_array_equal(act_space.high, [1.0, 1.0])
+
+    @jax.jit
+    def rollout(key):  # gymnax-style: actions from the space, everything in one scan
+        obs, state = env.reset(key, params)
+
+        def body(carry, k):
+            state, ok = carry
+            k_act, k_step = jax.random.split(k)
+            a = act_space.sample(k_act)
+            obs, state, *_ = env.step(k_step, state, a, params)
+            return (state, ok & obs_space.contains(obs) & act_space.contains(a)), None
+
+        (_, ok), _ = jax.lax.scan(body, (state, obs_space.contains(obs)), jax.random.split(key, 64))
+        return ok, obs_space.sample(key)
+
+    ok, sample = rollout(jax.random.key(0))
+    assert bool(ok) and sample.shape == (28,) and bool(obs_space.contains(sample))
+    assert not bool(obs_space.contains(jnp.full(28, -1.0)))
+    # the gymnasium adapter's spaces are these, converted
+    pytest.importorskip("gymnasium")
+    from fedjax_nav.env.gym_env import NavGymEnv
+
+    g = NavGymEnv("train-2", episode_length=16, v_max=0.5)
+    assert g.observation_space == obs_space.to_gymnasium() and g.action_space == act_space.to_gymnasium()

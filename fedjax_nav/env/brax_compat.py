@@ -12,11 +12,20 @@ We keep the current jax rather than pin `jax<0.10`: the rest of this package is 
 measured against jax 0.10, and one missing helper is cheaper to restore than a whole stack to hold
 back.
 
-TODO: delete this module (and its calls) once brax releases the fix for issue #671; after that
-`ensure_device_put_replicated()` is already a no-op because `jax.device_put_replicated` exists or
-brax no longer needs it.
+How it is applied: `fedjax_nav.env.brax_env.register()`, which runs when that module is imported
+(the import that registers "fedjax_nav" with brax), calls `ensure_device_put_replicated()`. So
+`brax.envs.get_environment("fedjax_nav")` followed by brax's own `ppo.train` / `sac.train` works
+with no call by the user. It installs the function only when jax lacks it, never replaces jax's
+own, and a second call changes nothing. Code that uses brax's trainers on its own envs without
+importing `brax_env` can call `ensure_device_put_replicated()` itself.
 
-This module does not import brax (importing brax prints a "Failed to import warp" line).
+When to delete: once a brax release after 0.14.2 no longer calls `jax.device_put_replicated`
+(check: `grep -rn device_put_replicated "$(python -c 'import brax, os; print(os.path.dirname(brax.__file__))')"`
+finds nothing) and the project requires that release, delete this module, its call in
+`brax_env.register` and its tests in tests/test_brax.py. Until then the install is harmless on a
+jax that still has the function (it is a no-op there).
+
+This module does not import brax (brax's import is slow and prints mjx's "Failed to import warp").
 """
 
 from __future__ import annotations
@@ -57,8 +66,9 @@ def device_put_replicated(x: Any, devices: Sequence[jax.Device]) -> Any:
 def ensure_device_put_replicated() -> bool:
     """Install `device_put_replicated` as `jax.device_put_replicated` if jax lacks it.
 
-    Call before `brax.training.agents.ppo.train` / `sac.train`. Idempotent; never replaces a
-    function jax itself provides. Returns True if it installed the shim (now or earlier).
+    `fedjax_nav.env.brax_env` calls it on import; call it yourself only before brax's trainers on
+    envs of your own. Idempotent; never replaces a function jax itself provides. Returns True if
+    it installed the shim (now or earlier).
     """
     current = getattr(jax, "device_put_replicated", None)
     if current is None:

@@ -1,20 +1,22 @@
 """A `brax.envs.Env` over the navigation task, for brax's trainers (PPO, SAC) and wrappers.
 
-This is the only module of the package that imports brax (importing brax prints a "Failed to
-import warp" line, so keep it out of everything else; import this module lazily).
+This is the only module of the package that imports brax, so import it only where you use it
+(brax's import is slow). mujoco's mjx prints two "Failed to import warp" lines when brax imports
+it; this module swallows exactly those two lines of its brax import (any other output is passed on).
 
-    from fedjax_nav.env.brax_compat import ensure_device_put_replicated
-    from fedjax_nav.env.brax_env import BraxNavEnv
+    import fedjax_nav.env.brax_env  # noqa: F401  (registers "fedjax_nav", installs the jax shim)
+    from brax import envs
     from brax.training.agents.ppo import train as ppo
 
-    ensure_device_put_replicated()  # brax 0.14.2 + jax >= 0.10, see brax_compat
-    env = BraxNavEnv(["train-0", "train-2"])  # no own time limit: ppo's EpisodeWrapper has it
+    env = envs.get_environment("fedjax_nav", worlds=["train-0", "train-2"])  # a BraxNavEnv
     make_policy, params, metrics = ppo.train(env, num_timesteps=..., episode_length=1024, ...)
 
 Importing this module registers the env with brax's registry as `"fedjax_nav"` (`ENV_NAME`), so
 `brax.envs.get_environment("fedjax_nav", worlds=[...], **kwargs)` builds a `BraxNavEnv` and
 `brax.envs.create("fedjax_nav", episode_length=..., batch_size=..., **kwargs)` wraps it in brax's
-training wrappers, as for brax's own environments.
+training wrappers, as for brax's own environments. The same import (`register`) installs
+`fedjax_nav.env.brax_compat`'s `jax.device_put_replicated` if jax lacks it, which brax 0.14.2's
+`ppo.train` and `sac.train` need on jax >= 0.10: they then train the env as they are.
 
 Semantics (those of `NavEnv(mode="eval")`):
 - `reset(rng)` picks a playground uniformly at random (or the fixed `playground`), puts the robot
@@ -49,17 +51,38 @@ new-style typed key when used unwrapped.
 
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
 from pathlib import Path
 from typing import Any, Sequence, Union
 
 import jax
 import jax.numpy as jnp
-from brax import envs as brax_envs
-from brax.envs.base import Env, State
 from flax import struct
 
+from fedjax_nav.env.brax_compat import ensure_device_put_replicated
 from fedjax_nav.env.nav import EnvParams, EnvState, NavEnv, make_params
 from fedjax_nav.worlds import World, load_many, stack
+
+# What mujoco's mjx prints (with print, to stdout) when brax imports it and the optional `warp`
+# package is missing: "Failed to import warp: ..." and "Failed to import mujoco_warp: ...".
+_WARP_NOISE = ("Failed to import warp:", "Failed to import mujoco_warp:")
+
+
+def _echo_unless_warp_noise(captured: str) -> None:
+    """Print what the brax import printed, less mjx's two warp lines."""
+    kept = [line for line in captured.splitlines(keepends=True) if not line.startswith(_WARP_NOISE)]
+    if kept:
+        sys.stdout.write("".join(kept))
+
+
+# Only the brax import runs with stdout captured (a no-op when brax is already imported).
+with contextlib.redirect_stdout(io.StringIO()) as _captured:
+    from brax import envs as brax_envs
+    from brax.envs.base import Env, State
+_echo_unless_warp_noise(_captured.getvalue())
+del _captured
 
 WorldsLike = Union[str, Path, Sequence[Union[str, Path]], World]
 
@@ -210,7 +233,11 @@ def register() -> None:
 
     `brax.envs.get_environment(ENV_NAME, **kwargs)` then calls `BraxNavEnv(**kwargs)`
     (`worlds=...`, `playground=...`, EnvParams overrides, ...). Registering again is harmless.
+    Also installs `brax_compat.device_put_replicated` as `jax.device_put_replicated` when jax
+    lacks it (jax >= 0.10), so that brax's `ppo.train` / `sac.train` run on the registered env
+    without the caller doing anything; idempotent, and a jax that has the function keeps its own.
     """
+    ensure_device_put_replicated()
     brax_envs.register_environment(ENV_NAME, BraxNavEnv)
 
 

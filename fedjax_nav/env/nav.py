@@ -14,14 +14,19 @@ Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, cli
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+import inspect
+from pathlib import Path
+from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fedjax_nav import worlds as _worlds
 from fedjax_nav.env import robot as rm
 from fedjax_nav.env.geometry import lidar, nearest_distance
+from fedjax_nav.env.spaces import Box
 from fedjax_nav.worlds import World
 
 MODES = ("learn", "eval")
@@ -257,6 +262,42 @@ class NavEnv:
             pose = unicycle(pose, v, w, h)
         return pose, jnp.stack([v, w])
 
+    # ------------------------------------------------------------------ gymnax conventions
+    #
+    # What JAX-native code written for gymnax expects of an env: `env.default_params`,
+    # `env.observation_space(params)`, `env.action_space(params)` (and the module's `make`).
+    # Additions only: `__init__`, `reset`, `step`, `EnvParams` and `EnvState` are untouched. One
+    # difference from gymnax stays on purpose: `step` returns `terminated` and `truncated` apart
+    # (gymnax has one `done`), so that off-policy learners bootstrap on a time-out.
+
+    name = "Nav-v0"
+    num_actions = 2
+
+    @property
+    def default_params(self) -> EnvParams:
+        """EnvParams of `DEFAULT_WORLD` ("train-0") with every field at its default (gymnax's
+        `env.default_params`; there is no world-free default: the playground is part of the params)."""
+        return make_params(_default_world())
+
+    def observation_space(self, params: EnvParams | None = None) -> Box:
+        """Box f32[num_beams + 4]: ranges in [0, max_range] m, goal distance in [0, dmax] m,
+        bearing in [-pi, pi] rad, previous action in [0, 1] x [-1, 1]. dmax = the room's diagonal
+        plus the longest drive of an episode (v_max dt episode_length); for a stacked World the
+        largest over its playgrounds. The bounds are jnp arrays (traced params work too)."""
+        params = self.default_params if params is None else params
+        size = jnp.asarray(params.world.size, jnp.float32)
+        diag = jnp.max(jnp.hypot(size[..., 0], size[..., 1]))
+        dmax = (diag + jnp.max(params.v_max * params.dt) * self.episode_length).astype(jnp.float32)
+        pi = jnp.float32(jnp.pi)
+        zero, one = jnp.float32(0.0), jnp.float32(1.0)
+        low = jnp.concatenate([jnp.zeros(self.num_beams, jnp.float32), jnp.stack([zero, -pi, zero, -one])])
+        high = jnp.concatenate([jnp.full(self.num_beams, self.max_range, jnp.float32), jnp.stack([dmax, pi, one, one])])
+        return Box(low, high, (self.obs_size,), jnp.float32)
+
+    def action_space(self, params: EnvParams | None = None) -> Box:
+        """Box f32[2]: (v / v_max, omega / omega_max) in [0, 1] x [-1, 1], what `step` clips to."""
+        return Box(jnp.array([0.0, -1.0], jnp.float32), jnp.array([1.0, 1.0], jnp.float32), (2,), jnp.float32)
+
 
 def unicycle(pose: jax.Array, v: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:
     """Exact arc integration of x' = v cos th, y' = v sin th, th' = omega over dt."""
@@ -291,3 +332,37 @@ def make_params(world: World, **overrides) -> EnvParams:
     if overrides:
         raise TypeError(f"EnvParams has no field '{sorted(overrides)[0]}'")
     return base.replace(**fields)
+
+
+# ----------------------------------------------------------------------------- gymnax's make
+
+DEFAULT_WORLD = "train-0"  # the world of `NavEnv.default_params` and of `make` without `world=`
+ENV_IDS = ("Nav-v0", "fedjax_nav/Nav-v0")  # the names `make` knows (the second is the gymnasium id)
+_NAVENV_ARGS = tuple(inspect.signature(NavEnv.__init__).parameters)[1:]
+
+
+@functools.lru_cache(maxsize=1)
+def _default_world() -> World:
+    return _worlds.load(DEFAULT_WORLD)
+
+
+def make(
+    env_id: str = "Nav-v0", *, world: str | Path | Sequence[str | Path] | World = DEFAULT_WORLD, **kwargs
+) -> tuple[NavEnv, EnvParams]:
+    """`env, params = make("Nav-v0", ...)`, as `gymnax.make`.
+
+    world: a shipped name or a world file, a list of them (stacked: params with a leading
+    playground axis, to `vmap` over), or a `World`. The other keyword arguments go to `NavEnv`
+    when they are its arguments (num_beams, max_range, episode_length, mode, collision_test,
+    noise, robot, ...) and to `make_params` otherwise (EnvParams fields: goal_index, v_max, ...).
+    """
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown environment {env_id!r}; known: {', '.join(ENV_IDS)}")
+    env = NavEnv(**{k: kwargs.pop(k) for k in list(kwargs) if k in _NAVENV_ARGS})
+    if isinstance(world, World):
+        w = world
+    elif isinstance(world, (str, Path)):
+        w = _worlds.load(world)
+    else:
+        w = _worlds.load_many(list(world))
+    return env, make_params(w, **kwargs)
