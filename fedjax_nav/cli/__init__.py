@@ -29,6 +29,27 @@ from fedjax_nav.cli.commands import (  # noqa: F401  (UserError: the commands' i
 )
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1 (device counts, attempts, steps)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with one `error:` line (and the --help hint) instead of 3-10 lines of usage; exit 2.
+    Subparsers inherit the class, so every command's flags behave alike."""
+
+    def error(self, message: str):
+        from fedjax_nav.worlds.input_files import one_line
+
+        self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
+
+
 def _batch_flags(p: argparse.ArgumentParser) -> None:
     """The flags of the commands that train batches of runs (sweep, reproduce)."""
     p.add_argument(
@@ -39,7 +60,7 @@ def _batch_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--devices",
-        type=int,
+        type=positive_int,
         default=None,
         metavar="N",
         help="spread each batch of runs over N devices (default: all; on CPU one per core)",
@@ -56,7 +77,7 @@ def _device_flags(p: argparse.ArgumentParser) -> None:
     """The flags of `train` that spread one run over devices and processes."""
     p.add_argument(
         "--devices",
-        type=int,
+        type=positive_int,
         default=None,
         metavar="N",
         help="spread the run over N devices (on CPU: N forced host devices); default one, or every "
@@ -79,7 +100,7 @@ def _device_flags(p: argparse.ArgumentParser) -> None:
         metavar="HOST:PORT",
         help="process 0's address (default $JAX_COORDINATOR_ADDRESS)",
     )
-    p.add_argument("--num-processes", type=int, default=None, help="default $JAX_NUM_PROCESSES")
+    p.add_argument("--num-processes", type=positive_int, default=None, help="default $JAX_NUM_PROCESSES")
     p.add_argument("--process-id", type=int, default=None, help="default $JAX_PROCESS_ID")
 
 
@@ -135,11 +156,15 @@ def add_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate trained agents: success, time, efficiency, trajectories")
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="training run directories (several: a comparison)")
     p.add_argument("--world", default="eval", help="evaluation world: shipped name or world file (default eval)")
-    p.add_argument("--attempts", type=int, default=4, help="attempts per agent and goal (x num_robots for SNDDPG)")
+    p.add_argument(
+        "--attempts", type=positive_int, default=4, help="attempts per agent and goal (x num_robots for SNDDPG)"
+    )
     p.add_argument("--range-noise", type=float, default=0.01, help="std of the lidar noise in m (default 0.01)")
     p.add_argument("--action-noise", type=float, default=0.01, help="std of the action noise, action units (0.01)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the evaluation noise")
-    p.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
+    p.add_argument(
+        "--max-steps", type=positive_int, default=None, help="time-out T (default: the run's episode_length)"
+    )
     p.add_argument(
         "--out",
         default=None,
@@ -169,7 +194,7 @@ def add_render(sub) -> None:
     p = sub.add_parser("render", help="draw playgrounds with a short random-policy trajectory")
     p.add_argument("worlds", nargs="*", help="world names or files (default: every shipped world)")
     p.add_argument("--out", default="runs/render", help="output folder for the PNGs")
-    p.add_argument("--steps", type=int, default=300, help="random-policy steps to draw")
+    p.add_argument("--steps", type=positive_int, default=300, help="random-policy steps to draw")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_render)
 
@@ -264,7 +289,7 @@ COMMANDS = (
 
 def build_parser() -> argparse.ArgumentParser:
     """The `fedjax-nav` parser: the program's flags, then one subparser per command (`COMMANDS`)."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="fedjax-nav",
         description=__doc__.splitlines()[0],
         epilog="exit codes: 0 done, 2 input error (one line naming the file and field), "

@@ -32,15 +32,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fedjax_nav.config import Config, ConfigError, DDPGConfig, apply_overrides, from_dict, get, read_yaml, to_dict
+from fedjax_nav.config import (
+    Config,
+    ConfigError,
+    DDPGConfig,
+    apply_overrides,
+    field_info,
+    from_dict,
+    get,
+    read_yaml,
+    to_dict,
+)
+from fedjax_nav.config.validate import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
 BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddpg.buffer_alloc", "run.tensorboard")
 SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate"}
 
 
-class SweepError(ValueError):
-    """A bad sweep file or option; the message names the file and the key."""
+class SweepError(ConfigError):
+    """A bad sweep file or option; the message names the file and the key (bad input: exit 2
+    wherever it is raised, as every ConfigError)."""
 
 
 @dataclass(frozen=True)
@@ -170,6 +182,14 @@ def _point(path: Path, values: dict, base, before: list[str], after: list[str], 
     return Point({k: (v if k == "base" else get(cfg, k)) for k, v in values.items()}, cfg)
 
 
+def _seed_count(path: Path, value) -> int:
+    """`seeds:` as an int in run.seeds' range (not a float, a string, a list or a bool)."""
+    hi = field_info("run.seeds").metadata["hi"]
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= hi:
+        raise SweepError(f"{path}: seeds must be an integer in 1..{hi}, got {show(value)}")
+    return value
+
+
 def load_sweep(
     path: str | Path, overrides: list[str] | tuple = (), seeds: int | None = None, buffer_scale: float = 1.0
 ) -> Sweep:
@@ -182,15 +202,15 @@ def load_sweep(
     path = resolve(path, "sweep")
     spec = _read_spec(path)
     name = str(spec.get("name") or path.stem)
-    n_seeds = int(seeds if seeds is not None else spec.get("seeds", 1))
-    if n_seeds < 1:
-        raise SweepError(f"{path}: seeds must be >= 1 (got {n_seeds})")
+    n_seeds = _seed_count(path, seeds if seeds is not None else spec.get("seeds", 1))
     combos = _combos(path, spec)
     keys = tuple(dict.fromkeys(k for c in combos for k in c))
     common = _as_overrides(spec.get("set"), f"{path}: set")
     after = [*overrides, f"run.seeds={n_seeds}"]
     points = tuple(_point(path, v, v.get("base", spec.get("base")), common, after, buffer_scale) for v in combos)
     thesis = spec.get("thesis") or {}
+    if not isinstance(thesis, dict):
+        raise SweepError(f"{path}: thesis must be a mapping (the thesis's numbers), got {show(thesis)}")
     if thesis and thesis.get("by", keys[0] if keys else "method") not in (*keys, "method"):
         raise SweepError(f"{path}: thesis.by must be one of the grid keys {list(keys)} or 'method'")
     return Sweep(

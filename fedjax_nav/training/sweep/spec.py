@@ -23,6 +23,7 @@ two sweeps (or two experiments of `reproduce`) that ask for the same run share i
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 
 from fedjax_nav.config import Config, traced_fields
@@ -88,11 +89,16 @@ def fold_prefixes(jobs: list[Job]) -> list[Job]:
 
 def parse_bytes(text: str | int) -> int:
     """'4G', '512M', '1.5GB', 2e9 -> bytes."""
+    bad = SweepError(f"memory budget {text!r}: expected a positive size such as 4G, 512M or a number of bytes")
     if isinstance(text, (int, float)):
-        return int(text)
-    t = str(text).strip().upper().removesuffix("B")
-    mult = {"K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}.get(t[-1:], 1)
-    try:
-        return int(float(t[:-1] if mult > 1 else t) * mult)
-    except ValueError:
-        raise SweepError(f"memory budget {text!r}: expected a size such as 4G, 512M or a number of bytes") from None
+        value = float(text)
+    else:
+        t = str(text).strip().upper().removesuffix("B")
+        mult = {"K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}.get(t[-1:], 1)
+        try:
+            value = float(t[:-1] if mult > 1 else t) * mult
+        except ValueError:
+            raise bad from None
+    if not (math.isfinite(value) and value >= 1):  # inf, nan, 0 and negative budgets are not sizes
+        raise bad
+    return int(value)
