@@ -92,3 +92,19 @@ def test_a_budget_too_small_for_a_sweep_is_one_line(tmp_path):
     assert "more than the memory budget" in line and "raise --memory-budget" in line, line
     for argv in (["sweep", "tau", "--memory-budget", "inf"], ["train", "--memory-budget=-1G"]):
         assert "expected a positive size" in one_error_line(argv)
+
+
+def test_a_grid_of_too_many_points_is_refused_at_once(tmp_path):
+    import time
+
+    path = _sweep(tmp_path, grid={"fed.tau": [i / 300 for i in range(300)], "fed.beta": list(range(300))})
+    t = time.perf_counter()
+    assert "the grid has 90,000 points, more than 10,000" in one_error_line(["sweep", path])
+    assert time.perf_counter() - t < 5
+
+
+def test_a_single_seed_point_larger_than_the_budget_is_refused(tmp_path):
+    """The planner checked only points of several seeds: one seed of a huge buffer went through."""
+    path = _sweep(tmp_path, seeds=1, set=["ddpg.buffer_size=100000000"])
+    line = one_error_line(["sweep", path, "--out", tmp_path / "o", "--memory-budget", "1G", "--quiet"])
+    assert "needs 1 rows" in line and "more than the memory budget" in line, line

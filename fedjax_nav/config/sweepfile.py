@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,9 @@ from fedjax_nav.config.validate import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
 BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddpg.buffer_alloc", "run.tensorboard")
+# At most this many points per sweep file (the largest shipped one has 33): 300 x 300 took
+# minutes to read before anything was said, and would train for months here.
+MAX_POINTS = 10_000
 SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate"}
 
 
@@ -152,6 +156,12 @@ def _combos(path: Path, spec: dict) -> list[dict]:
     extra_points = spec.get("points") or []
     if not isinstance(extra_points, list) or not all(isinstance(p, dict) for p in extra_points):
         raise SweepError(f"{path}: points must be a list of mappings key: value")
+    count = math.prod(len(v) for v in grid.values()) * bool(grid) + len(extra_points)
+    if count > MAX_POINTS:
+        raise SweepError(
+            f"{path}: the grid has {count:,} points, more than {MAX_POINTS:,} (a sweep trains every one): "
+            "split it into several sweep files"
+        )
     combos = [dict(zip(grid, vals)) for vals in itertools.product(*grid.values())] if grid else []
     combos += [dict(p) for p in extra_points]
     return combos or [{}]

@@ -64,7 +64,7 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
         rep = replace(rep, ddpg=replace(rep.ddpg, buffer_alloc=alloc))
         trainer = Trainer(rep)
         per_row = row_bytes(trainer) * STATE_BYTES_FACTOR
-        cap = max(1, budget // max(per_row, 1))
+        cap = budget // max(per_row, 1)  # 0: not even one row fits (a single-seed point is checked too)
         batches, cur, rows = [], [], 0
         for j in js:
             n = j.cfg.run.seeds
