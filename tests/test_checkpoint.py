@@ -1,10 +1,11 @@
 """Long runs that lose nothing: checkpoints, exact resume, clear input errors, the NaN guard.
 
 Real `fedjax-nav train` subprocesses are killed (SIGKILL) or interrupted (SIGINT) after their first
-checkpoint, resumed with `--resume`, and compared with one uninterrupted run of the same tiny
-config (module fixture `reference`): every metric (metrics.csv) and every parameter (params.npz)
-must be bitwise identical. Each class of bad input ends with one line naming the file and the
-field, exit code 2 and no traceback.
+checkpoint or before it, resumed with `--resume` (also from a damaged latest checkpoint, falling
+back to the newest intact one, and with `--from-checkpoint N`), and compared with one
+uninterrupted run of the same tiny config (module fixture `reference`): every metric (metrics.csv)
+and every parameter (params.npz) must be bitwise identical. Each class of bad input ends with one
+line naming the file and the field, exit code 2 and no traceback.
 
 Every subprocess pays the jax import and, without a cache, the compilation of the trainer; they
 share one persistent compilation cache (JAX_COMPILATION_CACHE_DIR, a temporary folder unless one
@@ -88,23 +89,29 @@ def check_csv(path: Path) -> int:
     return len(df)
 
 
-def start_until_checkpoint(env, out: Path, *args) -> subprocess.Popen:
-    """Start `fedjax-nav train` and return once a checkpoint exists, the process still running.
+def start_until(env, out: Path, ready, *args, poll: float = 0.02) -> subprocess.Popen:
+    """Start `fedjax-nav train` and return once `ready(out)` holds, the process still running.
     Reads metrics.csv on every poll (atomic writes: never half-written)."""
     proc = subprocess.Popen(
         cmd("train", *args, "--quiet"), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     deadline = time.time() + TIMEOUT
-    while not steps(out):
+    while not ready(out):
         if proc.poll() is not None or time.time() > deadline:
             proc.kill()
             _, err = proc.communicate()
-            pytest.fail(f"no checkpoint before the run ended (rc {proc.returncode}): {err[-2000:]}")
+            pytest.fail(f"the run ended before it could be stopped (rc {proc.returncode}): {err[-2000:]}")
         if (out / "metrics.csv").exists():
             check_csv(out / "metrics.csv")
-        time.sleep(0.02)
-    check_csv(out / "metrics.csv")  # written before the first checkpoint was saved
+        time.sleep(poll)
     assert proc.poll() is None, "the run ended before it could be interrupted; make it longer"
+    return proc
+
+
+def start_until_checkpoint(env, out: Path, *args) -> subprocess.Popen:
+    """`start_until` the first checkpoint exists."""
+    proc = start_until(env, out, steps, *args)
+    check_csv(out / "metrics.csv")  # written before the first checkpoint was saved
     return proc
 
 
@@ -187,6 +194,72 @@ def test_sigint_saves_exits_130_and_resumes_bitwise_identical(reference, env, cf
     r = run_cli(env, "train", "--resume", out, "--quiet")
     assert r.returncode == 0, r.stderr[-3000:]
     assert json.loads((out / "summary.json").read_text())["resumed_from_episode"] == done[-1]
+    assert_same_run(reference, out)
+
+
+# Where a kill before the first checkpoint leaves the run: its config written, no episode yet (the
+# trainer compiling), or episodes in metrics.csv (then checkpoints every 8 episodes, a field that
+# changes neither the program nor its numbers, so that several chunks pass before the first one).
+BEFORE_FIRST_CHECKPOINT = {
+    "config": ((), lambda out: (out / "config.yaml").exists()),
+    "episodes": (("--set", "run.checkpoint_every=8"), lambda out: (out / "metrics.csv").exists()),
+}
+
+
+@pytest.mark.parametrize("when", list(BEFORE_FIRST_CHECKPOINT))
+def test_kill_9_before_the_first_checkpoint_then_resume_starts_again_bitwise_identical(
+    reference, env, cfg_file, tmp_path, capfd, when
+):
+    out = tmp_path / "run"
+    extra, ready = BEFORE_FIRST_CHECKPOINT[when]
+    proc = start_until(env, out, ready, "--config", cfg_file, "--out", out, *extra, poll=0.002)
+    try:
+        proc.send_signal(signal.SIGSTOP)  # frozen where it is: the folder can be checked, then killed
+        assert steps(out) == [], "the first checkpoint was saved before the kill; lengthen the window"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        stop(proc)
+    assert (out / ".lock").exists() and (out / "config.yaml").exists()
+
+    # --out refuses the folder and says how to resume it (in-process: refused before compiling)
+    assert cli.main(["train", "--config", str(cfg_file), "--out", str(out), "--quiet"]) == 2
+    line = capfd.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith("error: ") and f"--resume {out}" in line and "episode 0" in line, line
+
+    r = run_cli(env, "train", "--resume", out, "--quiet")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "no complete checkpoint" in r.stderr and "starting again from episode 0" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert json.loads((out / "summary.json").read_text())["resumed_from_episode"] == 0
+    assert_same_run(reference, out)
+
+
+def largest_state_file(ckpt: Path) -> Path:
+    """The largest file of a checkpoint's state (ties broken by name: the same file every run)."""
+    files = sorted((p for p in (ckpt / "state").rglob("*") if p.is_file()), key=lambda p: (p.stat().st_size, str(p)))
+    return files[-1]
+
+
+@pytest.mark.parametrize("how", ["damaged", "asked"])
+def test_resume_falls_back_from_a_damaged_checkpoint_or_starts_where_asked(reference, env, tmp_path, how):
+    """A damaged latest checkpoint: `--resume` continues from the newest intact one, a line naming
+    both; `--from-checkpoint 12`: from that one. The newer ones are removed and saved again."""
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    if how == "damaged":
+        victim = largest_state_file(out / "checkpoints" / "16")
+        victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 3])
+        r = run_cli(env, "train", "--resume", out, "--quiet")
+        start, needles = 14, (str(out / "checkpoints" / "16"), "corrupted", "checkpoint 14", "newest intact")
+    else:
+        r = run_cli(env, "train", "--resume", out, "--from-checkpoint", 12, "--quiet")
+        start, needles = 12, ("checkpoint 12", "(14, 16) are removed")
+    assert r.returncode == 0, r.stderr[-3000:]
+    notices = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(notices) == 1 and all(n in notices[0] for n in needles), r.stderr[-3000:]
+    assert json.loads((out / "summary.json").read_text())["resumed_from_episode"] == start
+    assert steps(out) == [12, 14, 16]
     assert_same_run(reference, out)
 
 
@@ -301,21 +374,13 @@ def test_resume_with_a_changed_config_lists_the_fields(reference, tmp_path, capf
     assert "run.episodes" not in line
 
 
-def test_resume_without_a_checkpoint(reference, env, tmp_path):
-    out = tmp_path / "run"
-    out.mkdir()
-    shutil.copy(reference / "config.yaml", out / "config.yaml")
-    r = run_cli(env, "train", "--resume", out, "--quiet")
-    expect_error(r.returncode, r.stderr, str(out / "checkpoints"), "no checkpoint")
-
-
 @pytest.mark.parametrize("damage", ["truncate", "garble"])
 def test_corrupted_checkpoint_is_detected(reference, env, tmp_path, damage):
+    """Asked for by `--from-checkpoint` (no fallback), a damaged checkpoint is one line, exit 2."""
     out = tmp_path / "run"
     shutil.copytree(reference, out)
     ckpt = out / "checkpoints" / "16"
-    files = sorted((p for p in (ckpt / "state").rglob("*") if p.is_file()), key=lambda p: (p.stat().st_size, str(p)))
-    victim = files[-1]  # the largest (ties broken by name: the same file every run)
+    victim = largest_state_file(ckpt)
     data = bytearray(victim.read_bytes())
     if damage == "truncate":  # tensorstore cannot read the arrays in it
         data, needles = data[: len(data) // 3], ("cannot be read",)
@@ -326,8 +391,8 @@ def test_corrupted_checkpoint_is_detected(reference, env, tmp_path, damage):
             data[i] ^= 0x5A
         needles = ("does not match the checksum", "cannot be read")
     victim.write_bytes(bytes(data))
-    r = run_cli(env, "train", "--resume", out, "--quiet")
-    line = expect_error(r.returncode, r.stderr, str(ckpt), "field", "corrupted")
+    r = run_cli(env, "train", "--resume", out, "--from-checkpoint", 16, "--quiet")
+    line = expect_error(r.returncode, r.stderr, str(ckpt), "field", "corrupted", "--from-checkpoint N (12, 14)")
     assert any(n in line for n in needles), line
 
 

@@ -340,12 +340,14 @@ def test_a_full_disk_during_a_checkpoint_is_one_line_exit_4(env, cfg_file, tmp_p
     # the metrics of the finished episodes were written; the run did not claim to finish
     assert sorted(pd.read_csv(out / "metrics.csv").episode.unique())[:2] == [0, 1]
     assert not (out / "summary.json").exists() and not (out / rundir.LOCK).exists()
+    assert list((out / "checkpoints").iterdir()) == []  # the unfinished save's folder is removed
 
 
 def test_a_checkpoint_without_its_manifest_is_one_line(trained, env, tmp_path):
+    """Every checkpoint without its manifests (with an intact older one, `--resume` would fall back to it)."""
     out = copy_run(trained, tmp_path)
-    manifests = list((out / "checkpoints" / "4").rglob("manifest.ocdbt"))
-    assert manifests
+    manifests = list((out / "checkpoints").rglob("manifest.ocdbt"))
+    assert {m.relative_to(out / "checkpoints").parts[0] for m in manifests} == {"2", "4"}
     for m in manifests:
         m.unlink()
     r = subprocess.run(

@@ -125,6 +125,14 @@ def add_train(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
     p.add_argument("--resume", metavar="RUN_DIR", default=None, help="continue a run from its latest checkpoint")
     p.add_argument(
+        "--from-checkpoint",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --resume: continue from checkpoint N (episodes done) instead of the latest intact one; "
+        "the newer checkpoints are removed (the run saves them again, bitwise the same)",
+    )
+    p.add_argument(
         "--overwrite",
         action="store_true",
         help="--out may hold an earlier run's results: remove them first (default: refuse)",

@@ -48,10 +48,18 @@ def _train(args: argparse.Namespace) -> int:
     except (SweepError, ValueError, OverflowError) as e:
         raise UserError(f"--memory-budget: {e}") from None
     src = f"{args.config}{' (with --set)' if overrides else ''}" if args.config else "<defaults> (with --set)"
+    if args.from_checkpoint is not None and not args.resume:
+        raise UserError("--from-checkpoint N needs --resume RUN_DIR")
     if args.resume:
         saved_path = Path(args.resume) / rundir.CONFIG
         if not _is_file(saved_path):
-            raise UserError(f"{saved_path}: missing; {args.resume} is not a run directory")
+            why = (
+                f"{args.resume} holds no run to resume (a run killed before it wrote its config): "
+                f"start it again with --out {args.resume}"
+                if _is_dir(args.resume) and not rundir.results_in(args.resume)
+                else f"{args.resume} is not a run directory"
+            )
+            raise UserError(f"{saved_path}: missing; {why}")
         cfg = src_cfg = load_config(saved_path)
         src = str(saved_path)
         if args.config or overrides:
@@ -95,6 +103,7 @@ def _train(args: argparse.Namespace) -> int:
             allow_config_change=args.allow_config_change,
             memory_budget=budget,
             src=src,
+            from_checkpoint=args.from_checkpoint,
         )
     except (FileExistsError, parallel.ShardingError) as e:
         raise UserError(str(e)) from None
@@ -119,6 +128,13 @@ def _is_file(path) -> bool:
         return False
 
 
+def _is_dir(path) -> bool:
+    try:
+        return Path(path).is_dir()
+    except (OSError, ValueError):
+        return False
+
+
 def _auto_seed_devices(args: argparse.Namespace) -> bool:
     """`train --seeds N` (N > 1, a multiple of the cores, no --devices, not resuming, one process)
     spreads its seeds over one device per core by default: one XLA CPU device keeps only ~1-1.5
@@ -137,6 +153,45 @@ def _auto_seed_devices(args: argparse.Namespace) -> bool:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    """`evaluate`, holding the lock of every run it evaluates (`_evaluation_lock`) throughout."""
+    import contextlib
+
+    with contextlib.ExitStack() as locks:
+        for run in _evaluated_dirs(args):
+            locks.enter_context(_evaluation_lock(run, writes_into=args.out is None or len(args.run_dirs) > 1))
+        return _evaluate_locked(args)
+
+
+def _evaluated_dirs(args: argparse.Namespace) -> list[Path]:
+    """The run directories (holding a config.yaml) of `evaluate`, each once; any other path is
+    named by the loader, and no lock is created in it."""
+    from fedjax_nav import rundir
+
+    seen: dict[str, Path] = {}
+    for d in args.run_dirs:
+        if _is_file(Path(d) / rundir.CONFIG):
+            seen.setdefault(os.path.realpath(d), Path(d))
+    return list(seen.values())
+
+
+def _evaluation_lock(run: Path, writes_into: bool):
+    """The run's lock (`rundir.RunLock`) for the whole evaluation: its params.npz is read and its
+    eval/ written while no `train` (e.g. `--overwrite`) can change the folder; a run in use is
+    refused (exit 2). A run folder the user cannot write to is read without a lock when the
+    evaluation is written elsewhere (`--out`)."""
+    import contextlib
+
+    from fedjax_nav.rundir import RunLock, WriteError
+
+    try:
+        return RunLock(run, "run directory")
+    except WriteError:
+        if writes_into:
+            raise
+        return contextlib.nullcontext()
+
+
+def _evaluate_locked(args: argparse.Namespace) -> int:
     from fedjax_nav.evaluation import EvalError, evaluate_runs
 
     common = dict(

@@ -4,7 +4,8 @@ A checkpoint at step `e` (episodes completed) holds the stacked TrainState of ev
 (parameters, targets, optimiser states, replay buffers, env states, epsilon, PRNG keys) and the
 metrics of episodes 0 .. e-1, so a resumed run rebuilds metrics.csv and continues bitwise as the
 run that was never interrupted. Saves are asynchronous; a kill during a save leaves a temporary
-folder that `latest_step()` ignores, so the previous checkpoint is used. Every checkpoint also holds
+folder that `latest_step()` ignores, so the previous checkpoint is used; the writer removes such
+folders when it opens the checkpoints and after a failed save (a full disk). Every checkpoint also holds
 a crc32 of each state array, checked on restore: a damaged file that still decodes is detected,
 and the resolved config it was trained with (`saved_config`; `train --resume` compares it with
 config.yaml). Errors are one line naming the checkpoint folder: `CheckpointError` when reading,
@@ -46,6 +47,9 @@ class Checkpointer:
         _silence()
         _quiet_abandoned_reads()
         self.dir = Path(run_dir).absolute() / rundir.CHECKPOINTS
+        self.writer = process in (None, 0)
+        if self.writer:
+            _remove_unfinished(self.dir)  # a save cut short by a kill: never to be completed
         alone = {}
         if process is not None:
             if process == 0:
@@ -79,7 +83,7 @@ class Checkpointer:
                 ),
             )
 
-    def _writing(self):
+    def _writing(self, what: str = "save a checkpoint"):
         """Any failure of a save (now or of an earlier asynchronous one) as one WriteError line."""
         import contextlib
 
@@ -89,11 +93,22 @@ class Checkpointer:
                 yield
             except Exception as e:
                 _silence()
+                self._abandon_failed_save()
                 raise WriteError(
-                    f"{self.dir}: cannot save a checkpoint ({_one_line(e)}); the last complete checkpoint is kept"
+                    f"{self.dir}: cannot {what} ({_one_line(e)}); the last complete checkpoint is kept"
                 ) from None
 
         return ctx()
+
+    def _abandon_failed_save(self) -> None:
+        """After a failed save: let orbax's threads end, then remove the save's temporary folder
+        (it can never complete; the previous checkpoints stay)."""
+        try:
+            self.manager.wait_until_finished()
+        except Exception:  # the same failure, reported once by the caller
+            pass
+        if self.writer:
+            _remove_unfinished(self.dir)
 
     def saved_config(self, step: int | None = None) -> dict | None:
         """The config (a to_dict mapping) saved with checkpoint `step` (default: the latest); None
@@ -117,6 +132,20 @@ class Checkpointer:
     def latest(self) -> int | None:
         return self.manager.latest_step()
 
+    def steps(self) -> list[int]:
+        """The complete checkpoints (episodes done), oldest first."""
+        return sorted(int(s) for s in self.manager.all_steps())
+
+    def remove_after(self, step: int) -> list[int]:
+        """Delete every checkpoint newer than `step` (before a resume from `step`: the run saves
+        those steps again). Returns the steps deleted."""
+        newer = [s for s in self.steps() if s > step]
+        with self._writing("remove the newer checkpoints"):
+            for s in newer:
+                self.manager.delete(s)
+            self.manager.reload()
+        return newer
+
     def restore(self, template, step: int | None = None):
         """(states, metrics) of `step` (default: the latest), states shaped like `template`."""
         step = self.latest() if step is None else step
@@ -138,8 +167,7 @@ class Checkpointer:
             fields = [f.rstrip("/") for f in re.findall(r"'path': '([^']+)'", str(e)) if "/" not in f.rstrip("/")]
             if fields:
                 raise CheckpointError(
-                    f"{path}: field {fields[-1]} cannot be read; the checkpoint is corrupted "
-                    "or incomplete (resume from an earlier step or restart)"
+                    f"{path}: field {fields[-1]} cannot be read; the checkpoint is corrupted or incomplete"
                 ) from None
             _silence()
             raise CheckpointError(
@@ -156,9 +184,38 @@ class Checkpointer:
                 kp = jax.tree_util.tree_flatten_with_path(out.state)[0][bad[0]][0]
                 raise CheckpointError(
                     f"{path}: field {'.'.join(_names(kp))} does not match the checksum saved with "
-                    "it; the checkpoint is corrupted (resume from an earlier step or restart)"
+                    "it; the checkpoint is corrupted"
                 )
         return out.state, history
+
+    def restore_intact(self, template, steps, check=None, damaged=None, asked: int | None = None):
+        """The first of `steps` (newest first) that restores: (step, states, metrics, damaged),
+        `damaged` {step: error line} of those that failed before it (added to the given ones).
+        `check(step)`, before each restore: e.g. its saved config against the run's (any
+        CheckpointError of it or of the restore: a damaged checkpoint, the next one is tried; other
+        errors stop). None restores: `no_intact`'s error."""
+        damaged = dict(damaged or {})
+        for step in steps:
+            try:
+                if check is not None:
+                    check(step)
+                return (step, *self.restore(template, step), damaged)
+            except CheckpointError as e:
+                damaged[step] = str(e)
+        raise self.no_intact(damaged, asked)
+
+    def no_intact(self, damaged: dict, asked: int | None = None) -> CheckpointError:
+        """The error when no checkpoint tried restores: the newest one's error line, the older ones
+        tried, and (a step `asked` for) the others to ask for instead."""
+        newest = max(damaged)
+        msg = damaged[newest]
+        older = sorted(set(damaged) - {newest}, reverse=True)
+        if older:
+            msg += f"; the older checkpoints ({', '.join(map(str, older))}) cannot be restored either"
+        others = [s for s in self.steps() if s != newest]
+        if asked is not None and others:
+            msg += f"; resume from another with --from-checkpoint N ({', '.join(map(str, others))})"
+        return CheckpointError(msg)
 
     def wait(self) -> None:
         with self._writing():
@@ -172,6 +229,31 @@ class Checkpointer:
 
 _CRC = "state_crc32"  # key in the episode_history item
 _CONFIG = "config_json"  # key in the episode_history item: the run's config, as UTF-8 JSON bytes
+
+
+def finished_steps(run_dir: str | Path) -> list[int]:
+    """The complete checkpoints of a run directory (orbax names one `<step>` once it is complete),
+    oldest first; read without opening a manager (nothing is created)."""
+    d = Path(run_dir) / rundir.CHECKPOINTS
+    try:
+        return sorted(int(p.name) for p in d.iterdir() if p.name.isdigit() and p.is_dir())
+    except OSError:  # no checkpoints folder
+        return []
+
+
+def _remove_unfinished(directory: Path) -> None:
+    """Remove the temporary folders of unfinished saves (`<step>.orbax-checkpoint-tmp...`)."""
+    import shutil
+
+    try:
+        unfinished = [p for p in directory.iterdir() if _UNFINISHED in p.name]
+    except OSError:  # not created yet
+        return
+    for p in unfinished:
+        shutil.rmtree(p, ignore_errors=True)
+
+
+_UNFINISHED = ".orbax-checkpoint-tmp"  # orbax's suffix of a save in progress
 
 
 def fingerprint(config: dict) -> str:

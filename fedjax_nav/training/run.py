@@ -8,6 +8,7 @@ layer above (`fedjax_nav.analysis.plots.draw_run`, called by `fedjax-nav train`)
 from __future__ import annotations
 
 import signal
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,11 +54,16 @@ def train(
     allow_config_change: bool = False,
     memory_budget: int | None = None,
     src: str = "config",
+    from_checkpoint: int | None = None,
 ) -> dict:
     """Train `cfg.run.seeds` seeds in one program; write the run directory; return the summary.
 
     Checkpoints every `run.checkpoint_every` episodes and at the end; `resume=True` continues
-    from the latest one. Ctrl-C finishes the current chunk, saves and raises `Interrupted`.
+    from the latest one, or from the newest intact one when the latest is damaged (a line on
+    stderr names both), or from checkpoint `from_checkpoint` (the newer ones are removed: the run
+    saves them again); a run without a complete checkpoint (stopped before its first one) starts
+    again from episode 0, saying so. Every way ends bitwise equal to the uninterrupted run.
+    Ctrl-C finishes the current chunk, saves and raises `Interrupted`.
     `mesh` (`fedjax_nav.training.parallel.make_mesh`): spread the clients or seeds over its devices, in
     this process or, after `parallel.initialize_distributed`, over every process (each process
     runs this same call; only process 0 writes files).
@@ -75,8 +81,9 @@ def train(
     trainer = Trainer(cfg, pad=parallel.client_padding(mesh, cfg.num_robots))  # masked clients fill the devices
     check_memory(trainer, memory_budget, src)
     writer = parallel.is_writer()
+    args = (cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer, from_checkpoint)
     if not writer:
-        return _train(cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer)
+        return _train(*args)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -84,7 +91,7 @@ def train(
     except OSError as e:
         raise rundir.WriteError(f"{out}: cannot create the run directory ({e.strerror or e})") from None
     with rundir.RunLock(out):
-        return _train(cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer)
+        return _train(*args)
 
 
 def refuse_config_change(changed, allow_config_change: bool, path: str | Path, against: str) -> None:
@@ -108,13 +115,14 @@ def refuse_config_change(changed, allow_config_change: bool, path: str | Path, a
     raise ConfigError(f"{path}: differs from {against} in {', '.join(refused)}; resuming would mix two runs: {hint}")
 
 
-def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool) -> None:
-    """The config to resume with against the one fingerprinted in the latest checkpoint."""
+def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool, step: int | None = None) -> None:
+    """The config to resume with against the one fingerprinted in checkpoint `step` (default: the
+    latest; `CheckpointError` when there is none or its history cannot be read)."""
     from fedjax_nav.config import diff, from_dict
     from fedjax_nav.training.checkpoint import fingerprint
 
-    step = ckpt.latest()
-    saved = ckpt.saved_config(step)  # CheckpointError when there is no checkpoint
+    step = ckpt.latest() if step is None else step
+    saved = ckpt.saved_config(step)
     if saved is not None:
         src = f"{ckpt.dir / str(step)}"
         try:
@@ -128,6 +136,43 @@ def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool) ->
         raise ConfigError(
             f"{out / rundir.CONFIG}: run.episodes ({cfg.run.episodes}) is below the {step} episodes already done"
         )
+
+
+@dataclass(frozen=True)
+class _Resume:
+    """Where a resumed run may start: `steps`, the checkpoints to try newest first (empty: none is
+    complete, start again from episode 0); `damaged`, newer ones already found unreadable
+    ({step: error line}); `asked`, the step of `--from-checkpoint` (no fallback) or None."""
+
+    steps: tuple[int, ...]
+    damaged: dict
+    asked: int | None
+    allow_config_change: bool
+
+
+def _plan_resume(ckpt, cfg: Config, out: Path, allow_config_change: bool, asked: int | None) -> _Resume:
+    """Before anything is allocated: the newest checkpoint (or `asked`) whose saved config can be
+    read is checked against `cfg` (`_check_resumable`; a changed config is refused here, never
+    fallen back from); newer ones whose history cannot be read are noted as damaged."""
+    from fedjax_nav.training.checkpoint import CheckpointError
+
+    steps = ckpt.steps()[::-1]
+    if asked is not None:
+        if asked not in steps:
+            held = ", ".join(map(str, steps[::-1])) or "none"
+            raise CheckpointError(f"{ckpt.dir}: no checkpoint {asked} (--from-checkpoint); complete ones: {held}")
+        steps = [asked]
+    damaged = {}
+    for i, step in enumerate(steps):
+        try:
+            _check_resumable(ckpt, cfg, out, allow_config_change, step)
+        except CheckpointError as e:
+            damaged[step] = str(e)
+            continue
+        return _Resume(tuple(steps[i:]), damaged, asked, allow_config_change)
+    if steps:
+        raise ckpt.no_intact(damaged, asked)
+    return _Resume((), {}, asked, allow_config_change)
 
 
 def to_dict_flat(cfg) -> dict:
@@ -156,6 +201,12 @@ class _Run:
     mesh: Any
     writer: bool
     ckpt: Any
+    resume: _Resume | None  # None: a new run
+
+    def say(self, line: str) -> None:
+        """A one-line notice on stderr (by the writer): what a resume did instead of the obvious."""
+        if self.writer:
+            print(line, file=sys.stderr, flush=True)
 
     def write_metrics(self, metrics: dict):
         """The metrics table of episodes 0.. (leaves [seeds, episodes, ...]); metrics.csv by the writer."""
@@ -176,14 +227,15 @@ def _train(
     overwrite: bool,
     allow_config_change: bool,
     writer: bool,
+    from_checkpoint: int | None = None,
 ) -> dict:
-    """prepare (refusals, checkpoints) -> init -> restore -> the loop of chunks (a divergence:
-    salvage what is good) -> finish (summary.json, params.npz)."""
-    run = _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer)
+    """prepare (refusals, config.yaml, checkpoints) -> init -> restore -> the loop of chunks (a
+    divergence: salvage what is good) -> finish (summary.json, params.npz)."""
+    run = _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer, from_checkpoint)
     hp = hparams_from_config(cfg) if hp is None else hp
     states = trainer.init_seeds(jnp.arange(cfg.run.seeds) + cfg.run.seed, hp, mesh=mesh)
-    states, metrics, start, all_df = _restore(run, states, resume)
-    if writer:
+    states, metrics, start, all_df = _restore(run, states)
+    if writer and resume:  # (a new run wrote it first, in _prepare)
         rundir.write_config(out, cfg)
     chunk = trainer.compiled_chunk(mesh=mesh, states=states, hp=hp)
     t0 = time.time()
@@ -191,40 +243,76 @@ def _train(
     return _finish(run, states, all_df, {"wall_s": time.time() - t0, **timings, "resumed_from_episode": start})
 
 
-def _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer) -> _Run:
-    """A new run refuses a folder holding results (or clears them, `overwrite`); the checkpoints
-    are opened; a resumed run refuses a config that differs from its checkpoint's."""
+def _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, writer, from_checkpoint=None) -> _Run:
+    """A new run refuses a folder holding results (or clears them, `overwrite`), then writes its
+    config.yaml before anything else (so that a run killed at any later moment can be resumed);
+    the checkpoints are opened; a resumed run refuses a config that differs from its checkpoint's."""
     from fedjax_nav.training import parallel
-    from fedjax_nav.training.checkpoint import Checkpointer
+    from fedjax_nav.training.checkpoint import Checkpointer, finished_steps
 
     if writer and not resume and rundir.results_in(out):  # (other processes: process 0 may have begun)
+        held = rundir.results_in(out)
         if not overwrite:
+            if rundir.CONFIG in held and not finished_steps(out):
+                raise FileExistsError(
+                    f"{out}: holds a run stopped before its first checkpoint ({', '.join(held)}); resume it with "
+                    f"--resume {out} (it starts again from episode 0), pick another --out, or pass --overwrite"
+                )
             raise FileExistsError(
-                f"{out}: already holds results ({', '.join(rundir.results_in(out))}); resume it with --resume "
+                f"{out}: already holds results ({', '.join(held)}); resume it with --resume "
                 f"{out}, pick another --out, or pass --overwrite to replace them"
             )
         rundir.clear_results(out)
+    if writer and not resume:
+        rundir.write_config(out, cfg)
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints, process=parallel.checkpoint_process(mesh))
-    if resume:
-        _check_resumable(ckpt, cfg, out, allow_config_change)
-    return _Run(cfg, out, trainer, mesh, writer, ckpt)
+    plan = _plan_resume(ckpt, cfg, out, allow_config_change, from_checkpoint) if resume else None
+    return _Run(cfg, out, trainer, mesh, writer, ckpt, plan)
 
 
-def _restore(run: _Run, states, resume: bool):
-    """(states, metrics, first episode, metrics table): a resumed run's latest checkpoint, its
-    metrics.csv written again from it (also when the run had already finished); a new run's
-    `states` as they are (refusing a folder that holds checkpoints)."""
+def _restore(run: _Run, states):
+    """(states, metrics, first episode, metrics table). A new run: `states` as they are (refusing
+    a folder that holds checkpoints). A resumed one: the first checkpoint of its plan that
+    restores (`_Resume`; the newer, damaged ones are removed and a line names both steps), its
+    metrics.csv written again from it (also when the run had already finished); or, when none is
+    complete, episode 0 (metrics.csv and tensorboard/ of the stopped attempt removed, a line says so)."""
     from fedjax_nav.training import parallel
 
-    if not resume:
+    plan = run.resume
+    if plan is None:
         if run.ckpt.latest() is not None:
             raise FileExistsError(
                 f"{run.out}: already holds checkpoints; resume it with --resume {run.out} or pick another --out"
             )
         return states, None, 0, None
-    restored, metrics = run.ckpt.restore(parallel.checkpoint_template(states, run.mesh))
+    if not plan.steps:
+        run.say(f"{run.out}: no complete checkpoint (stopped before its first one); starting again from episode 0")
+        if run.writer:
+            rundir.clear_results(run.out, (rundir.METRICS, rundir.TENSORBOARD))
+        return states, None, 0, None
+    step, restored, metrics, damaged = run.ckpt.restore_intact(
+        parallel.checkpoint_template(states, run.mesh),
+        plan.steps,
+        check=lambda step: _check_resumable(run.ckpt, run.cfg, run.out, plan.allow_config_change, step),
+        damaged=plan.damaged,
+        asked=plan.asked,
+    )
+    removed = run.ckpt.remove_after(step) if run.writer else []  # the run saves those steps again
+    if damaged:
+        newest = max(damaged)
+        also = sorted(set(damaged) - {newest}, reverse=True)
+        also_s = f" (checkpoints {', '.join(map(str, also))} too)" if also else ""
+        run.say(
+            f"{damaged[newest]}{also_s}; resuming from checkpoint {step} instead, the newest intact one "
+            f"(removed: {', '.join(map(str, removed or sorted(damaged)))})"
+        )
+    elif removed:
+        run.say(
+            f"{run.ckpt.dir}: resuming from checkpoint {step} (--from-checkpoint); the newer ones "
+            f"({', '.join(map(str, removed))}) are removed, the run saves them again"
+        )
     states = parallel.from_checkpoint(restored, states, run.mesh)
-    return states, metrics, int(run.ckpt.latest()), run.write_metrics(metrics)
+    return states, metrics, int(step), run.write_metrics(metrics)
 
 
 class _DeferredInterrupt:

@@ -1,0 +1,191 @@
+"""The edges of one writer per run directory and of checkpoints (docs/reliability.md): `evaluate`
+holds the run's lock, an empty or dead-owner lock is taken over (by exactly one process), a
+failed or killed save leaves no unfinished checkpoint folder, and a folder without a config says
+how to start again. Nothing here trains: the kills and resumes of real runs are in
+tests/test_checkpoint.py (before the first checkpoint, a damaged latest one, --from-checkpoint).
+"""
+
+import os
+import shlex
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from fedjax_nav import cli, rundir
+
+TIMEOUT = 120  # s, per subprocess
+
+
+def one_line(capfd, rc: int, code: int, *needles: str) -> str:
+    """Exit `code`, the last line on stderr `error: ...` holding every needle, no traceback."""
+    err = capfd.readouterr().err
+    assert rc == code and "Traceback" not in err, err[-3000:]
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("error: ") and all(n in line for n in needles), line
+    return line
+
+
+def dead_pid() -> int:
+    """The PID of a process that has ended (not reused this soon)."""
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+# ----------------------------------------------------------------------------- evaluate and the lock
+
+
+TINY = {
+    "method": "iddpg",
+    "env": {"worlds": ["train-0", "train-2"], "episode_length": 16},
+    "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
+    "run": {"episodes": 2, "seeds": 1, "chunk_episodes": 1},
+}
+
+
+@pytest.fixture(scope="module")
+def untrained_run(tmp_path_factory) -> Path:
+    """A run directory that evaluate accepts: config.yaml and the initial params.npz (no training)."""
+    import jax.numpy as jnp
+
+    from fedjax_nav.config import load_config
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
+
+    run = tmp_path_factory.mktemp("untrained") / "run"
+    run.mkdir()
+    (run / "tiny.yaml").write_text(yaml.safe_dump(TINY))
+    cfg = load_config(run / "tiny.yaml")
+    (run / "tiny.yaml").unlink()
+    rundir.write_config(run, cfg)
+    states = Trainer(cfg).init_seeds(jnp.arange(1), hparams_from_config(cfg))
+    rundir.write_params(run, states.agents)
+    return run
+
+
+@pytest.mark.parametrize("what", [[], ["--suite", "heldout"]])
+def test_evaluate_refuses_a_run_in_use_and_writes_nothing(untrained_run, capfd, what):
+    """While a writer (here this process, as `train --overwrite` would) holds RUN/.lock, evaluate
+    neither reads the run nor writes RUN/eval/."""
+    run = untrained_run
+    with rundir.RunLock(run):
+        rc = cli.main(["evaluate", str(run), "--no-figures", "--attempts", "1", *what])
+        one_line(capfd, rc, 2, str(run), "in use", f"process {os.getpid()}", str(run / rundir.LOCK))
+        assert (run / rundir.LOCK).read_text().split()[0] == str(os.getpid())  # still the writer's
+    assert sorted(p.name for p in run.iterdir()) == [rundir.CONFIG, rundir.PARAMS]
+
+
+def test_evaluate_of_a_missing_folder_names_it(tmp_path, capfd):
+    """No lock is created for a run folder that does not exist: the loader names it."""
+    one_line(capfd, cli.main(["evaluate", str(tmp_path / "nope")]), 2, "no such run directory")
+    assert not (tmp_path / "nope").exists()
+
+
+# ----------------------------------------------------------------------------- stale locks
+
+
+def test_an_empty_lock_is_taken_over_once_it_is_old(tmp_path, capfd):
+    """An empty .lock: a process killed between creating it and writing its owner. Fresh, it may be
+    being written (refused); older than rundir.EMPTY_LOCK_S, it is stale (taken over, one line)."""
+    lock = tmp_path / rundir.LOCK
+    lock.touch()
+    with pytest.raises(rundir.RunDirError, match="in use by another process"):
+        rundir.RunLock(tmp_path)
+    old = time.time() - 60  # s, well beyond rundir.EMPTY_LOCK_S
+    os.utime(lock, (old, old))
+    with rundir.RunLock(tmp_path):
+        assert lock.read_text().split() == [str(os.getpid()), socket.gethostname()]
+    assert "taking over a stale lock (empty for" in capfd.readouterr().err
+    assert not lock.exists() and not (tmp_path / rundir.LOCK_TAKEOVER).exists()
+    # a lock of another host is never taken over, however old
+    lock.write_text(f"{dead_pid()} another-host\n")
+    os.utime(lock, (old, old))
+    with pytest.raises(rundir.RunDirError, match="on another-host"):
+        rundir.RunLock(tmp_path)
+
+
+def test_a_stale_lock_is_taken_over_by_exactly_one_of_several(tmp_path):
+    """Four processes find the same dead-owner lock at the same moment: one takes it, three are
+    told it is in use."""
+    (tmp_path / rundir.LOCK).write_text(f"{dead_pid()} {socket.gethostname()}\n")
+    script = (
+        "import sys, time\nfrom fedjax_nav import rundir\nt0 = float(sys.argv[2])\n"
+        "while time.time() < t0: pass\n"
+        "try:\n    lock = rundir.RunLock(sys.argv[1])\nexcept rundir.RunDirError:\n    print('refused'); sys.exit()\n"
+        "print('took', flush=True); time.sleep(1.5); lock.release()\n"
+    )
+    t0 = str(time.time() + 3.0)  # after every interpreter has started
+    procs = [
+        subprocess.Popen([sys.executable, "-c", script, str(tmp_path), t0], stdout=subprocess.PIPE, text=True)
+        for _ in range(4)
+    ]
+    outs = sorted(p.communicate(timeout=TIMEOUT)[0].strip() for p in procs)
+    assert outs == ["refused", "refused", "refused", "took"], outs
+    assert not (tmp_path / rundir.LOCK).exists() and not (tmp_path / rundir.LOCK_TAKEOVER).exists()
+
+
+# ----------------------------------------------------------------------------- unfinished saves
+
+
+SAVE = """
+import sys
+import numpy as np
+from fedjax_nav.training.checkpoint import Checkpointer
+from fedjax_nav.rundir import WriteError
+ck = Checkpointer(sys.argv[1])
+try:
+    ck.save(1, {"a": np.random.default_rng(0).normal(size=100_000).astype(np.float32)}, {"reward": np.zeros(2)})
+    ck.close()
+except WriteError as e:
+    print(e)
+"""
+
+
+def test_a_failed_save_leaves_no_unfinished_folder(tmp_path):
+    """A real failed write (files limited to 8 KiB, SIGXFSZ ignored: EFBIG as on a full disk)."""
+    run = tmp_path / "run"
+    argv = shlex.join([sys.executable, "-c", SAVE, str(run)])
+    r = subprocess.run(
+        ["bash", "-c", f"trap '' XFSZ; ulimit -f 8; exec {argv}"],
+        env=dict(os.environ, JAX_PLATFORMS="cpu"),
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT,
+    )
+    assert r.returncode == 0 and "cannot save a checkpoint" in r.stdout, r.stdout + r.stderr[-3000:]
+    assert list((run / rundir.CHECKPOINTS).iterdir()) == []
+
+
+def test_opening_the_checkpoints_removes_an_unfinished_save(tmp_path):
+    """A kill during a save leaves `<step>.orbax-checkpoint-tmp`: the next writer removes it."""
+    from fedjax_nav.training.checkpoint import Checkpointer
+
+    unfinished = tmp_path / rundir.CHECKPOINTS / "3.orbax-checkpoint-tmp" / "state"
+    unfinished.mkdir(parents=True)
+    (unfinished / "part").write_bytes(b"\0" * 64)
+    ck = Checkpointer(tmp_path)
+    try:
+        assert list((tmp_path / rundir.CHECKPOINTS).iterdir()) == [] and ck.latest() is None
+    finally:
+        ck.close()
+
+
+# ----------------------------------------------------------------------------- a run that never began
+
+
+def test_resume_of_a_folder_without_a_config_says_to_start_again(tmp_path, capfd):
+    """Killed before it wrote its config (only a lock left): nothing to resume; the line says how
+    to start it again, and `--from-checkpoint` alone is refused."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / rundir.LOCK).write_text(f"{dead_pid()} {socket.gethostname()}\n")
+    rc = cli.main(["train", "--resume", str(run), "--quiet"])
+    one_line(capfd, rc, 2, str(run / rundir.CONFIG), "holds no run to resume", f"--out {run}")
+    rc = cli.main(["train", "--from-checkpoint", "2", "--quiet"])
+    one_line(capfd, rc, 2, "--from-checkpoint N needs --resume")
+    assert sorted(p.name for p in run.iterdir()) == [rundir.LOCK]
