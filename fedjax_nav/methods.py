@@ -1,7 +1,9 @@
 """The thesis's methods as data (docs/decisions.md, "Methods"): how many networks and buffers,
 which aggregator (a name in `fedjax_nav.federated.aggregators.RULES`), which starts. The
 trainer reads these flags; there are no subclasses. The config's `method` choices are this
-table's keys."""
+table's keys. The names are the thesis's, but a method is only the sharing: with `learner: td3`
+(or sac, ppo) `flddpg` is soft FedAvg of TD3 agents (docs/learners.md); an on-policy learner
+cannot share a buffer (seddpg, snddpg: config.validate says so)."""
 
 from __future__ import annotations
 

@@ -172,7 +172,12 @@ def act(nets: Nets, state: State, obs: jax.Array, key: jax.Array, hidden: Hidden
 def greedy(nets: Nets, state: State, obs: jax.Array, hidden: Hidden, reset) -> tuple[jax.Array, Hidden]:
     """The deterministic action (the squashed mean). Only the actor's hidden state advances
     (evaluation needs no value)."""
-    h_a, mean = _net_step(nets, nets.actor, state.actor, hidden.actor, obs, reset)
+    return greedy_actor(nets, state.actor, obs, hidden, reset)
+
+
+def greedy_actor(nets: Nets, actor: dict, obs: jax.Array, hidden: Hidden, reset) -> tuple[jax.Array, Hidden]:
+    """`greedy` from the actor's parameters alone (what evaluation and export hold)."""
+    h_a, mean = _net_step(nets, nets.actor, actor, hidden.actor, obs, reset)
     return dist.mode(mean), hidden._replace(actor=h_a)
 
 

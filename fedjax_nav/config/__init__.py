@@ -1,6 +1,7 @@
 """Configuration: frozen dataclasses that map one to one onto the YAML files.
 
-A config file has four sections (`env`, `ddpg`, `fed`, `run`) and the `method`. Every field has
+A config file has the `method`, the `learner` and the sections `env`, `ddpg`, `td3`, `sac`, `ppo`,
+`fed`, `run`, `robot`. Every field has
 a default, a type, an allowed range or set, and a note of whether it is *traced* (a JAX value:
 it can be swept in one compiled program) or *static* (it fixes shapes or the program).
 
@@ -29,6 +30,10 @@ ROBUST_AGGREGATORS = ("method", "mean", "median", "trimmed_mean", "krum", "geome
 ATTACKS = ("none", "noise", "scale", "sign_flip", "zeros", "stale")
 ROOM_SOURCES = ("fixed", "procedural")
 ROOM_FAMILIES = ("cylinders", "boxes", "walls", "mixture", "fixed")  # fedjax_nav.worlds.FAMILIES + "fixed"
+# The `learner` choices and those that learn on-policy (no replay buffer to share), kept equal to
+# fedjax_nav.agents.learners.LEARNERS by tests/test_learner_trainer.py (config does not import jax).
+LEARNERS = ("ddpg", "td3", "sac", "ppo")
+ON_POLICY_LEARNERS = ("ppo",)
 
 
 class ConfigError(ValueError):
@@ -62,7 +67,7 @@ class EnvConfig:
     progress_scale: float = _f(
         40.0, lo=-1e6, hi=1e6, traced=True, doc="R_d = progress_scale * (d_prev - d), within +-1e6"
     )
-    # Rooms the robots never saw (issue 15; docs/generalization.md). The defaults give today's runs.
+    # Rooms the robots never saw (docs/generalization.md). The defaults give today's runs.
     rooms: str = _f(
         "fixed",
         choices=ROOM_SOURCES,
@@ -99,10 +104,21 @@ class EnvConfig:
         doc="start and goal: the room's start 0 / goal 0, or drawn at random in the free space "
         "at every episode's reset (static)",
     )
+    envs_per_robot: int = _f(
+        1,
+        lo=1,
+        hi=65536,
+        doc="environments each robot (federated client) steps at once, all feeding its learner; each "
+        "draws its own starts and, with procedural rooms, its own room (static; 1 = the thesis)",
+    )
 
 
 @dataclass(frozen=True)
 class DDPGConfig:
+    """DDPG's settings, and the off-policy settings TD3 and SAC share with it: the networks (hidden,
+    depth, activation), the replay buffer (buffer_size, buffer_alloc, batch_size, gradient_steps),
+    gamma, lr (actor and critic) and train_every. rho, target_every and epsilon_* are DDPG's only."""
+
     hidden: int = _f(64, lo=1, hi=65536, doc="hidden width (static)")
     depth: int = _f(3, lo=1, hi=16, doc="hidden layers (static)")
     activation: str = _f("relu", choices=("relu", "tanh", "elu", "gelu", "silu"), doc="(static)")
@@ -122,6 +138,60 @@ class DDPGConfig:
     )
     epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
     epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
+    gradient_steps: int = _f(
+        1,
+        lo=1,
+        hi=4096,
+        doc="gradient steps per update event, each on its own batch (static): the update-to-data ratio "
+        "is gradient_steps / (train_every x rows per step); raise it with env.envs_per_robot",
+    )
+
+
+@dataclass(frozen=True)
+class TD3Config:
+    """TD3's own settings (Fujimoto et al. 2018); the rest are the ddpg section's (DDPGConfig)."""
+
+    tau: float = _f(0.005, lo=0.0, hi=1.0, traced=True, doc="target mix on every actor step")
+    policy_delay: int = _f(2, lo=1, hi=2**31 - 1, traced=True, doc="gradient steps per actor step (an int32)")
+    policy_noise: float = _f(0.2, lo=0.0, hi=100.0, traced=True, doc="target smoothing std, box half-widths")
+    noise_clip: float = _f(0.5, lo=0.0, hi=100.0, traced=True, doc="|target smoothing noise| bound, half-widths")
+    expl_noise: float = _f(0.1, lo=0.0, hi=100.0, traced=True, doc="exploration noise std, box half-widths")
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """SAC's own settings (Haarnoja et al. 2018); the rest are the ddpg section's (DDPGConfig)."""
+
+    tau: float = _f(0.005, lo=0.0, hi=1.0, traced=True, doc="critic target mix on every gradient step")
+    alpha_lr: float = _f(3e-4, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate of the temperature")
+    init_alpha: float = _f(1.0, lo=1e-8, hi=1e6, traced=True, doc="initial temperature")
+    target_entropy: float = _f(-2.0, lo=-1e3, hi=1e3, traced=True, doc="in box units; -2 = -action size")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO's settings (Schulman et al. 2017; docs/learners.md). Its rollout is [rollout, envs_per_robot]
+    per robot, updated every `rollout` steps."""
+
+    hidden: int = _f(64, lo=1, hi=65536, doc="hidden width (static)")
+    depth: int = _f(2, lo=1, hi=16, doc="hidden layers (static)")
+    activation: str = _f("tanh", choices=("relu", "tanh", "elu", "gelu", "silu"), doc="(static)")
+    recurrent: str = _f("none", choices=("none", "gru"), doc="a GRU in the policy and the value (static)")
+    gru_hidden: int = _f(64, lo=1, hi=65536, doc="GRU state size with recurrent: gru (static)")
+    rollout: int = _f(128, lo=1, hi=1_000_000, doc="T_roll, steps per rollout and update (static)")
+    epochs: int = _f(4, lo=1, hi=1000, doc="passes over each rollout (static)")
+    minibatches: int = _f(
+        4, lo=1, hi=1_000_000, doc="per epoch; divides rollout x envs_per_robot (a GRU: envs_per_robot) (static)"
+    )
+    lr: float = _f(3e-4, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate")
+    gamma: float = _f(0.99, lo=0.0, hi=1.0, traced=True, doc="discount")
+    gae_lambda: float = _f(0.95, lo=0.0, hi=1.0, traced=True, doc="GAE lambda")
+    clip_eps: float = _f(0.2, lo=0.0, hi=10.0, traced=True, doc="ratio clip")
+    value_clip: float = _f(0.0, lo=0.0, hi=1e6, traced=True, doc="value-change clip; 0 = not clipped")
+    vf_coef: float = _f(0.5, lo=0.0, hi=1e3, traced=True, doc="value loss weight")
+    ent_coef: float = _f(0.0, lo=0.0, hi=1e3, traced=True, doc="entropy bonus weight")
+    max_grad_norm: float = _f(0.5, lo=0.0, hi=1e6, traced=True, doc="global gradient norm clip")
+    init_log_std: float = _f(0.0, lo=-20.0, hi=5.0, traced=True, doc="initial log-std of the raw action")
 
 
 @dataclass(frozen=True)
@@ -133,7 +203,7 @@ class FedConfig:
         2, lo=1, hi=2**31 - 1, traced=True, doc="E_update (episodes) or T_update (steps) (an int32: < 2^31)"
     )
     include_targets: bool = _f(False, doc="also average target networks (static)")
-    # Robust federation (issue 14; docs/robustness.md). The defaults give today's runs bit for bit.
+    # Robust federation (docs/robustness.md). The defaults give today's runs bit for bit.
     participation: float = _f(
         1.0,
         lo=0.0,
@@ -203,8 +273,12 @@ class RunConfig:
 @dataclass(frozen=True)
 class Config:
     method: str = _f("flddpg", choices=METHODS, doc="the method (docs/decisions.md, Methods)")
+    learner: str = _f("ddpg", choices=LEARNERS, doc="what each agent learns with (docs/learners.md) (static)")
     env: EnvConfig = field(default_factory=EnvConfig)
     ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    td3: TD3Config = field(default_factory=TD3Config)
+    sac: SACConfig = field(default_factory=SACConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
     fed: FedConfig = field(default_factory=FedConfig)
     run: RunConfig = field(default_factory=RunConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
@@ -218,7 +292,17 @@ class Config:
         return self.ddpg.buffer_alloc or self.ddpg.buffer_size
 
 
-SECTIONS = {"env": EnvConfig, "ddpg": DDPGConfig, "fed": FedConfig, "run": RunConfig, "robot": RobotConfig}
+SECTIONS = {
+    "env": EnvConfig,
+    "ddpg": DDPGConfig,
+    "td3": TD3Config,
+    "sac": SACConfig,
+    "ppo": PPOConfig,
+    "fed": FedConfig,
+    "run": RunConfig,
+    "robot": RobotConfig,
+}
+TOP_LEVEL = ("method", "learner")  # the fields outside the sections
 
 
 def traced_fields() -> tuple[str, ...]:
@@ -228,19 +312,28 @@ def traced_fields() -> tuple[str, ...]:
 
 
 def field_info(dotted: str) -> dataclasses.Field:
-    """The dataclass field behind a dotted name ("ddpg.gamma"), with its metadata."""
-    if dotted == "method":
-        return {f.name: f for f in fields(Config)}["method"]
+    """The dataclass field behind a dotted name ("ddpg.gamma", or "method" / "learner")."""
+    if dotted in TOP_LEVEL:
+        return {f.name: f for f in fields(Config)}[dotted]
     section, name = dotted.split(".")
     return {f.name: f for f in fields(SECTIONS[section])}[name]
 
 
 def get(cfg: Config, dotted: str):
-    """The value of a dotted name ("ddpg.gamma", or "method")."""
-    if dotted == "method":
-        return cfg.method
+    """The value of a dotted name ("ddpg.gamma", or "method" / "learner")."""
+    if dotted in TOP_LEVEL:
+        return getattr(cfg, dotted)
     section, name = dotted.split(".")
     return getattr(getattr(cfg, section), name)
+
+
+def values(cfg: Config) -> dict:
+    """Every field's value by dotted name ({"learner": "ddpg", "ddpg.hidden": 64, ...}): what a
+    learner's `make_nets` reads its static sizes from (the agents layer does not import config)."""
+    out = {name: getattr(cfg, name) for name in TOP_LEVEL}
+    for s, cls in SECTIONS.items():
+        out.update({f"{s}.{f.name}": getattr(getattr(cfg, s), f.name) for f in fields(cls)})
+    return out
 
 
 # The rest of the package's config API (validation, files, overrides) lives beside the schema.
@@ -258,19 +351,25 @@ from fedjax_nav.config.validate import check, from_dict  # noqa: E402
 
 __all__ = [
     "ATTACKS",
+    "LEARNERS",
     "METHODS",
+    "ON_POLICY_LEARNERS",
     "ROBOT_MODELS",
     "ROBUST_AGGREGATORS",
     "ROOM_FAMILIES",
     "ROOM_SOURCES",
     "SECTIONS",
+    "TOP_LEVEL",
     "Config",
     "ConfigError",
     "DDPGConfig",
     "EnvConfig",
     "FedConfig",
+    "PPOConfig",
     "RobotConfig",
     "RunConfig",
+    "SACConfig",
+    "TD3Config",
     "apply_overrides",
     "check",
     "diff",
@@ -284,4 +383,5 @@ __all__ = [
     "save_config",
     "to_dict",
     "traced_fields",
+    "values",
 ]

@@ -10,8 +10,10 @@ from dataclasses import fields
 from typing import Any
 
 from fedjax_nav.config import (
+    ON_POLICY_LEARNERS,
     ROOM_FAMILIES,
     SECTIONS,
+    TOP_LEVEL,
     Config,
     ConfigError,
     robot_problem,
@@ -129,20 +131,21 @@ def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (
     values names `--set`, one in any other value names `src`, and a cross-field error names
     `src (with --set)`."""
     if not isinstance(data, dict):
-        raise ConfigError(f"{src}: a config must be a mapping with keys method, env, ddpg, fed, run")
+        raise ConfigError(f"{src}: a config must be a mapping with keys {', '.join((*TOP_LEVEL, *SECTIONS))}")
     overridden = set(overridden)
 
     def where(dotted: str) -> str:
         return "--set" if dotted in overridden else src
 
-    allowed = {"method", *SECTIONS}
+    allowed = {*TOP_LEVEL, *SECTIONS}
     for k in data:
         if k not in allowed:
             raise ConfigError(f"{src}: unknown key {show(str(k))} (allowed: {', '.join(sorted(allowed))})")
     kwargs = {s: _build(cls, data.get(s), src, s, where) for s, cls in SECTIONS.items()}
-    if "method" in data:
-        method_field = {f.name: f for f in fields(Config)}["method"]
-        kwargs["method"] = _coerce(data["method"], method_field, f"{where('method')}: method")
+    top = {f.name: f for f in fields(Config)}
+    for name in TOP_LEVEL:
+        if name in data:
+            kwargs[name] = _coerce(data[name], top[name], f"{where(name)}: {name}")
     cfg = Config(**kwargs)
     check(cfg, f"{src} (with --set)" if overridden else src)
     return cfg
@@ -171,12 +174,14 @@ def check(cfg: Config, src: str = "<config>") -> None:
         )
     if federated and cfg.fed.period_unit == "steps" and cfg.fed.period > cfg.env.episode_length * cfg.run.episodes:
         raise ConfigError(f"{src}: fed.period ({cfg.fed.period} steps) is longer than the whole run")
-    if cfg.run.episodes * cfg.env.episode_length * cfg.num_robots >= 2**31:  # the int32 step counters
+    rows = cfg.run.episodes * cfg.env.episode_length * cfg.num_robots * cfg.env.envs_per_robot
+    if rows >= 2**31:  # the int32 step counters
         raise ConfigError(
-            f"{src}: run.episodes x env.episode_length x robots = "
-            f"{cfg.run.episodes * cfg.env.episode_length * cfg.num_robots:,} transitions; at most 2^31 - 1"
+            f"{src}: run.episodes x env.episode_length x robots x env.envs_per_robot = "
+            f"{rows:,} transitions; at most 2^31 - 1"
         )
     _check_fed(cfg, src, federated)
+    _check_learner(cfg, src)
     _check_rooms(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:
         raise ConfigError(
@@ -188,6 +193,28 @@ def check(cfg: Config, src: str = "<config>") -> None:
             f"{src}: run.checkpoint_every ({cfg.run.checkpoint_every}) must be a multiple of "
             f"run.chunk_episodes ({cfg.run.chunk_episodes})"
         )
+
+
+def _check_learner(cfg: Config, src: str) -> None:
+    """The learner against the method and its own loop sizes (docs/learners.md)."""
+    from fedjax_nav.methods import METHODS
+
+    p, method = cfg.ppo, METHODS[cfg.method]
+    if cfg.learner in ON_POLICY_LEARNERS and (method.shared_network or method.shared_buffer):
+        what = "one network and one replay buffer" if method.shared_network else "one replay buffer"
+        raise ConfigError(
+            f"{src}: method {cfg.method} shares {what} between the robots; learner {cfg.learner} learns "
+            "on-policy from each robot's own rollout and cannot (use iddpg, or a federated method)"
+        )
+    if p.recurrent != "none" and cfg.learner != "ppo":
+        raise ConfigError(f"{src}: ppo.recurrent ({p.recurrent!r}) needs learner: ppo (learner is {cfg.learner!r})")
+    if cfg.learner == "ppo":
+        n = cfg.env.envs_per_robot
+        # a GRU's minibatches are whole sequences: they split the environments, not the rows
+        recurrent = p.recurrent != "none"
+        rows, what = (n, "env.envs_per_robot") if recurrent else (p.rollout * n, "ppo.rollout x env.envs_per_robot")
+        if rows % p.minibatches:
+            raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
 
 
 def _check_rooms(cfg: Config, src: str) -> None:

@@ -6,7 +6,11 @@ train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per ro
        compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of the DDPG updates against
        the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of the
        whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput), and
-       1, 5 and 40 clients (robots) with one seed; compilation timed separately.
+       1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then the other
+       learners with many environments per robot (`env.envs_per_robot`): feed-forward PPO with
+       5 robots x 256 environments in procedural rooms, SAC and TD3 with 5 x 64, and the env alone
+       at PPO's batch (1280). Their gradient steps per second count PPO's epochs x minibatches and
+       the off-policy `gradient_steps` per update event; FLOP/s are counted for DDPG only.
 sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped program (the
        per-run cost of `fedjax-nav sweep`).
 
@@ -100,23 +104,44 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
     return rows
 
 
+def _train_config(overrides, learner: str = "ddpg"):
+    """The thesis FLDDPG preset with `overrides` and `learner` (validated as a whole)."""
+    from fedjax_nav.config import apply_overrides, from_dict, read_yaml
+
+    data = read_yaml("configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else "thesis/flddpg")
+    return from_dict({**apply_overrides(data, list(overrides)), "learner": learner})
+
+
+def gradient_steps(cfg, nets: int, episodes: int) -> int:
+    """Gradient steps of every network in `episodes` episodes (update events x steps per event)."""
+    from fedjax_nav.config import ON_POLICY_LEARNERS
+
+    T = cfg.env.episode_length
+    if cfg.learner in ON_POLICY_LEARNERS:
+        return nets * (T // cfg.ppo.rollout) * cfg.ppo.epochs * cfg.ppo.minibatches * episodes
+    return nets * (T // cfg.ddpg.train_every) * cfg.ddpg.gradient_steps * episodes
+
+
 def bench_train(
-    seeds=(1,), episodes: int = 1, ceiling: float | None = None, overrides=(), devices: int = 1, shard: str = "seeds"
+    seeds=(1,),
+    episodes: int = 1,
+    ceiling: float | None = None,
+    overrides=(),
+    devices: int = 1,
+    shard: str = "seeds",
+    learner: str = "ddpg",
 ) -> list[dict]:
     """`devices` > 1: the seeds spread over that many devices (what `train --seeds N` does by
     default when N is a multiple of the cores), or with `shard="clients"` the robots (padded
-    with masked clients to a multiple of `devices`: one thesis seed, 5 robots, as 3 + 3)."""
+    with masked clients to a multiple of `devices`: one thesis seed, 5 robots, as 3 + 3).
+    agent-steps count every environment's steps (robots x env.envs_per_robot)."""
     from fedjax_nav.agents.ddpg import update_flops
-    from fedjax_nav.config import load_config
     from fedjax_nav.training.hparams import hparams_from_config
     from fedjax_nav.training.trainer import Trainer
 
     rows = []
     for s in seeds:
-        cfg = load_config(
-            "configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
-            [f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides],
-        )
+        cfg = _train_config([f"run.chunk_episodes={episodes}", "run.checkpoint_every=0", *overrides], learner)
         hp = hparams_from_config(cfg)
         mesh = None
         if devices > 1:
@@ -135,14 +160,18 @@ def bench_train(
         jax.block_until_ready(m)
         dt = time.perf_counter() - t0
         T, N = cfg.env.episode_length, tr.n_real  # the padding clients' work is not counted
-        agent_steps = s * N * T * episodes
-        updates = s * (tr.n_real if tr.pad else tr.n_nets) * (T // cfg.ddpg.train_every) * episodes
-        flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
-        gflops = flops / dt / 1e9
+        agent_steps = s * N * cfg.env.envs_per_robot * T * episodes
+        updates = s * gradient_steps(cfg, tr.n_real if tr.pad else tr.n_nets, episodes)
+        gflops = None
+        if cfg.learner == "ddpg":  # the one learner whose FLOPs are counted (agents.ddpg.update_flops)
+            flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
+            gflops = flops / dt / 1e9
         rows.append(
             {
                 "bench": "train",
                 "method": cfg.method,
+                "learner": cfg.learner,
+                "envs_per_robot": cfg.env.envs_per_robot,
                 "seeds": s,
                 "robots": N,
                 "rooms": cfg.env.rooms
@@ -155,7 +184,7 @@ def bench_train(
                 "agent_updates_per_s": updates / dt,
                 "gflops": gflops,
                 "ceiling_gflops": ceiling,
-                "fraction_of_ceiling": gflops / ceiling if ceiling else None,
+                "fraction_of_ceiling": gflops / ceiling if ceiling and gflops is not None else None,
                 "episode_s": dt / episodes,
                 "run_estimate_s": dt / episodes * cfg.run.episodes,  # all seeds together
                 "compile_s_incl_first_chunk": compile_s,
@@ -163,6 +192,26 @@ def bench_train(
             }
         )
     return rows
+
+
+# The other learners with many environments per robot (docs/learners.md): feed-forward PPO with
+# 5 x 256 environments in procedural rooms (rollout 128 x 256 = 32768 rows per robot and update),
+# SAC and TD3 with 5 x 64 (a buffer of 100k rows per robot, one gradient step per update event).
+LEARNER_ROWS = (
+    ("ppo", ("env.envs_per_robot=256", "env.rooms=procedural", "env.room_families=[mixture]")),
+    ("sac", ("env.envs_per_robot=64", "ddpg.buffer_size=100000")),
+    ("td3", ("env.envs_per_robot=64", "ddpg.buffer_size=100000")),
+)
+
+
+def bench_learners(overrides=(), rows=LEARNER_ROWS, env_batch: int = 1280) -> list[dict]:
+    """`bench train` rows of the learners beside DDPG, and the env alone at PPO's batch."""
+    out = []
+    for learner, extra in rows:
+        out += bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner)
+    if env_batch:
+        out += bench_env(batches=(env_batch,), steps=200)
+    return out
 
 
 def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 2) -> list[dict]:
@@ -284,12 +333,20 @@ def format_rows(rows: list[dict]) -> str:
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
+            learner, per = r.get("learner", "ddpg"), r.get("envs_per_robot", 1)
+            flops = (
+                f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
+                if r.get("gflops") is not None
+                else ""
+            )
             lines.append(
-                f"| train {r['method']} | {r['seeds']} seed(s) x {r['robots']} robots"
+                f"| train {r['method']}{f' ({learner})' if learner != 'ddpg' else ''} | "
+                f"{r['seeds']} seed(s) x {r['robots']} robots"
+                f"{f' x {per} environments' if per > 1 else ''}"
                 f"{f', seeds over {d} devices' if (d := r.get('devices', 1)) > 1 else ''}"
                 f"{f', {rooms} rooms, new every episode' if (rooms := r.get('rooms', 'fixed')) != 'fixed' else ''} | "
-                f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} agent-updates/s, "
-                f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
+                f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} "
+                f"{'agent-updates/s' if learner == 'ddpg' else 'gradient steps/s'}, {flops}"
                 f"episode {r['episode_s']:.2f} s, 125-episode run (all its seeds) ~{r['run_estimate_s']:.0f} s; "
                 f"compile ~{r['compile_s']:.1f} s (first call minus a steady one) |"
             )
@@ -318,6 +375,8 @@ def main(args) -> int:
         for robots in (1,) if quick else (1, 40):
             rooms = ", ".join(f"train-{[0, 2, 3, 4, 5][i % 5]}" for i in range(robots))
             rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, f"env.worlds=[{rooms}]"))
+        small = (*over, "env.envs_per_robot=4", "ppo.rollout=32") if quick else ()
+        rows += bench_learners(small, env_batch=64 if quick else 1280)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
     if what in ("sweep", "all"):
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()

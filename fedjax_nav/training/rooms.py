@@ -10,6 +10,11 @@ procedural rooms drawn inside the compiled program, and random start/goal placem
     env.room_density_start,    a curriculum, sparse to dense: the rooms drawn at episode ep keep
     env.room_curriculum_episodes   `density(hp, ep)` of their obstacles (traced; default none)
 
+With env.envs_per_robot = N > 1 each robot steps N environments: there is one room per
+environment (rows robot-major: environment j of robot i is row i * N + j), each drawn on its own
+(procedural rooms) and placed on its own (random placement); fixed playgrounds are repeated N times.
+Below, "robot" reads "environment" then; N = 1 is exactly the program described.
+
 State: a procedural run's `TrainState` holds the robots' current rooms (`world`: World [robots],
 every robot padded to one shape that fits every family's rooms and every fixed playground) and
 `room_stream` (u32[], drawn once per seed at init). The rooms of block b = episode // room_every
@@ -53,13 +58,14 @@ class TrainRooms:
 
     def __init__(self, cfg):
         e = cfg.env
-        n = cfg.num_robots
+        n, per = cfg.num_robots, e.envs_per_robot
         self.num_robots = n
+        self.num_rooms = n * per  # one per environment
         self.procedural = e.rooms == "procedural"
         self.random_placement = e.placement == "random"
         fixed = [worlds.load(w) for w in e.worlds]
         if not self.procedural:
-            self.world = worlds.load_many(e.worlds)  # exactly the fixed program's World
+            self.world = _per_env(worlds.load_many(e.worlds), per)  # N = 1: exactly the fixed program's World
             self.families, self.groups = (FIXED,) * n, []
             return
         fams = tuple(e.room_families)
@@ -78,9 +84,10 @@ class TrainRooms:
         shapes = [(w.segments.shape[0], w.circles.shape[0], w.starts.shape[0], w.goals.shape[0]) for w in fixed]
         self.shape = common_shape(specs.values(), shapes)
         self.specs = {f: padded_spec(s, self.shape) for f, s in specs.items()}
-        self.world = worlds.stack([worlds.pad(w, *self.shape) for w in fixed])  # the "fixed" robots' rows
+        self.world = _per_env(worlds.stack([worlds.pad(w, *self.shape) for w in fixed]), per)  # "fixed" rows
+        room_families = [f for f in self.families for _ in range(per)]
         self.groups = [
-            (self.specs[f], np.array([i for i, g in enumerate(self.families) if g == f])) for f in self.specs
+            (self.specs[f], np.array([i for i, g in enumerate(room_families) if g == f])) for f in self.specs
         ]
 
     def stream(self, key: jax.Array) -> jax.Array:
@@ -91,7 +98,7 @@ class TrainRooms:
         """The robots' rooms of block `block` (World [robots]), thinned to `density` (see
         `density`); pure JAX, jit/vmap-able."""
         world = self.world
-        base = stream + jnp.asarray(block, jnp.uint32) * jnp.uint32(self.num_robots)
+        base = stream + jnp.asarray(block, jnp.uint32) * jnp.uint32(self.num_rooms)
         for spec, idx in self.groups:
             keys = jax.vmap(train_room_key)(base + jnp.asarray(idx, jnp.uint32))
             rooms = jax.vmap(lambda k, spec=spec: generate(k, spec, density))(keys)
@@ -110,9 +117,14 @@ class TrainRooms:
             )
             state = state.replace(world=world)
         if self.random_placement:
-            keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_robots)
+            keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_rooms)
             world = jax.vmap(place)(world, keys)
         return state, world
+
+
+def _per_env(world: World, per: int) -> World:
+    """Each robot's row repeated for its `per` environments (robot-major); `world` itself when 1."""
+    return world if per == 1 else jax.tree.map(lambda x: jnp.repeat(x, per, axis=0), world)
 
 
 def density(hp, ep) -> jax.Array:

@@ -1,7 +1,10 @@
 """What one training step reports and how an episode turns it into metrics.
 
 `StepMetrics` is one step's values; the step scan sums them over the episode in its carry and
-`EPISODE_METRICS` turns the sums into the episode's metrics (docs/architecture.md).
+`EPISODE_METRICS` turns the sums into the episode's metrics (docs/architecture.md). The losses are
+the learner's own (`agents.learners.Learner.metrics`: critic_loss, actor_loss, q for the off-policy
+learners; policy_loss, value_loss, ... for PPO): `loss_metrics` turns each into its mean over the
+episode's update events.
 """
 
 from __future__ import annotations
@@ -25,13 +28,11 @@ class StepMetrics:
     maximum, a count of steps with a property) is a field here that the step sets, plus its
     line in EPISODE_METRICS."""
 
-    reward: jax.Array  # f32[robots]
-    goals: jax.Array  # i32[robots]
+    reward: jax.Array  # f32[robots] (the mean over a robot's environments)
+    goals: jax.Array  # i32[robots] (summed over a robot's environments)
     collisions: jax.Array  # i32[robots]
-    critic_loss: jax.Array  # f32[nets], 0 on steps without a gradient step
-    actor_loss: jax.Array  # f32[nets]
-    q: jax.Array  # f32[nets] mean Q of the batch
-    updates: jax.Array  # i32[] 1 on a gradient step
+    losses: dict  # learner metric -> f32[nets], 0 on steps without an update (DDPG: critic_loss, actor_loss, q)
+    updates: jax.Array  # i32[] 1 on an update event
     fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
     fed_clients: jax.Array  # i32[] clients that exchanged models in that step's round
     fed_skipped: jax.Array  # i32[] 1 if that round had too few participants
@@ -48,11 +49,15 @@ EPISODE_METRICS: dict[str, Callable[[StepMetrics, int], jax.Array]] = {
     "reward": lambda m, T: m.reward / T,  # mean reward per step, per robot
     "goals": lambda m, T: m.goals,
     "collisions": lambda m, T: m.collisions,
-    "critic_loss": lambda m, T: _per_update(m.critic_loss, m),  # mean over the episode's gradient steps
-    "actor_loss": lambda m, T: _per_update(m.actor_loss, m),
-    "q": lambda m, T: _per_update(m.q, m),
     "fed_events": lambda m, T: m.fed_events,
     "fed_clients": lambda m, T: m.fed_clients,
     "fed_skipped": lambda m, T: m.fed_skipped,
 }
+
+
+def loss_metrics(sums: StepMetrics, names) -> dict:
+    """Each learner loss in `names`: its mean over the episode's update events, f32[nets]."""
+    return {n: _per_update(sums.losses[n], sums) for n in names}
+
+
 NO_ROUND = {"clients": np.int32(0), "skipped": np.int32(0)}  # what a step without a round reports

@@ -3,12 +3,19 @@
     chunk(states[seed], hp, first_episode):
       vmap over seeds:
         scan over episodes {
-          reset every robot
-          scan over steps { act (epsilon-greedy) ; env step (vmap robots) ; store ;
-                            every T_train: DDPG update (vmap nets) ; every T_target: targets ;
+          reset every environment (robots x env.envs_per_robot)
+          scan over steps { act (the learner's exploration) ; env step (vmap environments) ; store ;
+                            when the learner is due: update (vmap nets) ; [DDPG: every T_target targets] ;
                             [every T_update steps: federated step] }
           [every E_update episodes: federated step]
         }
+
+The learner (`cfg.learner`: DDPG, TD3, SAC, PPO) is data, `agents.learners.LEARNERS[cfg.learner]`:
+the trainer calls its functions (explore, store, due, update, shared, ...) and never branches on
+its name. A robot (a federated client) steps env.envs_per_robot environments at once, rows
+robot-major in every per-environment array (environment j of robot i is row i * N + j); all of them
+feed that robot's learner: an off-policy buffer receives N rows per step, a PPO rollout is
+[T_roll, N]. With N = 1 and `learner: ddpg` this is the thesis's program, bit for bit.
 
 The step and episode counters enter as scan inputs that are *not* batched over seeds, so the
 "every T_train steps" gates are real `lax.cond`s (under vmap a cond on a batched predicate
@@ -36,27 +43,28 @@ import numpy as np
 from flax import struct
 
 from fedjax_nav import methods, worlds
-from fedjax_nav.agents import buffer as rb
-from fedjax_nav.agents import ddpg
-from fedjax_nav.config import Config, envs
+from fedjax_nav.agents import learners
+from fedjax_nav.agents.learners import Record
+from fedjax_nav.config import Config, envs, values
 from fedjax_nav.env.nav import EnvParams, EnvState
 from fedjax_nav.training import federation
-from fedjax_nav.training.hparams import HParams, hp_axes
+from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
 from fedjax_nav.training.rooms import density as room_density  # the curriculum's, not an env field
-from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite
+from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite, loss_metrics
 
 
 @struct.dataclass
 class TrainState:
-    """One seed. Leading axes: agents [n_nets], buffers [n_bufs], env_state/obs [robots]."""
+    """One seed. Leading axes: agents [n_nets], buffers [n_bufs], env_state/obs/memory/first
+    [environments] (robots x env.envs_per_robot, robot-major), reward_sum [robots]."""
 
-    agents: ddpg.AgentState
-    buffers: rb.Transition
+    agents: Any  # the learner's state (ddpg.AgentState, td3.State, sac.State, ppo.State)
+    buffers: Any  # the learner's storage: replay rows (buffer.Transition) or a rollout (ppo.Rollout)
     env_state: EnvState
-    obs: jax.Array  # f32[robots, obs]
-    epsilon: jax.Array  # f32[]
+    obs: jax.Array  # f32[environments, obs]
+    epsilon: jax.Array  # f32[] DDPG's exploration probability (decayed for every learner; only DDPG reads it)
     agg_state: Any  # the aggregator's state (a NamedTuple of fedjax_nav.federated.aggregators; no client axis)
     reward_sum: jax.Array  # f32[robots] since the last federated step
     reward_steps: jax.Array  # f32[]
@@ -64,6 +72,9 @@ class TrainState:
     # procedural rooms only (env.rooms = procedural; training/rooms.py), None otherwise:
     world: worlds.World | None = None  # the robots' current rooms [robots]
     room_stream: jax.Array | None = None  # u32[] this seed's offset in the training room stream
+    # learners with a memory (PPO: its GRU states, empty without a GRU), None otherwise:
+    memory: Any = None  # the learner's per-environment carry [environments, ...]
+    first: jax.Array | None = None  # bool[environments]: obs starts an episode
 
 
 class Trainer:
@@ -86,17 +97,20 @@ class Trainer:
             cfg = dataclasses.replace(
                 cfg, env=dataclasses.replace(cfg.env, worlds=cfg.env.worlds + (cfg.env.worlds[-1],) * self.pad)
             )
-        e, d = cfg.env, cfg.ddpg
+        e = cfg.env
         self.env = envs.make_env(cfg, "learn")  # the ideal robot: noise off, the thesis's program
         self.rooms = TrainRooms(cfg)  # fixed playgrounds, or procedural rooms drawn in the program
-        self.world = self.rooms.world
+        self.world = self.rooms.world  # one room per environment
         f = cfg.fed
+        self.learner = learners.get(cfg.learner)
         self.num_robots = cfg.num_robots
+        self.envs_per_robot = e.envs_per_robot
+        self.num_envs = self.num_robots * self.envs_per_robot
         self.n_nets = 1 if self.method.shared_network else self.num_robots
         self.n_bufs = 1 if self.method.shared_buffer else self.num_robots
-        self.writes = self.num_robots // self.n_bufs  # rows each buffer receives per step
-        self.nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
-        self.probe = Probe(cfg, self.nets, cfg.run.eval_suite) if cfg.run.eval_every else None
+        self.writes = self.num_envs // self.n_bufs  # rows each buffer receives per step
+        self.nets = self.learner.make_nets(values(cfg))  # static: modules, batch and loop sizes
+        self.probe = Probe(cfg, self.learner, self.nets, cfg.run.eval_suite) if cfg.run.eval_every else None
         self.obs_size = self.env.obs_size
         self.T = e.episode_length
         # static client roles: the last fed.byzantine real robots are Byzantine; padding is never real
@@ -104,39 +118,46 @@ class Trainer:
         self.byzantine = self.real & (np.arange(self.num_robots) >= self.n_real - f.byzantine)
 
     def env_params(self, hp: HParams, world: worlds.World | None = None) -> EnvParams:
-        """The robots' EnvParams [robots] in `world` (default: the run's fixed rooms)."""
+        """The environments' EnvParams [environments] in `world` (default: the run's fixed rooms)."""
         return envs.env_params(self.world if world is None else world, hp, self.method.random_starts)
 
     def aggregator(self, hp: HParams):
         """The run's aggregator with its traced hyperparameters (`training.federation.aggregator`)."""
         return federation.aggregator(self, hp)
 
-    def shared(self, agents: ddpg.AgentState) -> dict:
-        """What a client sends in a federated round: its networks (and targets if configured)."""
-        out = {"actor": agents.actor, "critic": agents.critic}
-        if self.cfg.fed.include_targets:
-            out.update(actor_targ=agents.actor_targ, critic_targ=agents.critic_targ)
-        return out
+    def shared(self, agents) -> dict:
+        """What a client sends in a federated round: the learner's SHARED fields (and its TARGETS
+        with fed.include_targets)."""
+        return self.learner.shared(agents, self.cfg.fed.include_targets)
 
-    def take_shared(self, agents: ddpg.AgentState, new: dict) -> ddpg.AgentState:
+    def take_shared(self, agents, new: dict):
         """The agents with what a federated round sent back (`shared`'s keys) put in place."""
-        return agents.replace(**new)
+        return self.learner.take_shared(agents, new)
+
+    def policy(self, agents):
+        """The greedy policies' parameters (leaves [n_nets, ...]): what the probe drives."""
+        return self.learner.policy(agents)
 
     # ------------------------------------------------------------------ init
 
     def init(self, key: jax.Array, hp: HParams) -> TrainState:
         """One seed's initial state. Every agent gets its own initialisation key."""
+        L = self.learner
         k_nets, k_env, k_run = jax.random.split(key, 3)
-        agents = jax.vmap(lambda k: ddpg.init_agent(self.nets, k, self.obs_size))(jax.random.split(k_nets, self.n_nets))
-        buffers = jax.vmap(lambda _: rb.init(self.cfg.buffer_rows, self.obs_size))(jnp.arange(self.n_bufs))
-        rooms = {}
+        agents = jax.vmap(lambda k: L.init(self.nets, k, self.obs_size, hp))(jax.random.split(k_nets, self.n_nets))
+        buffers = jax.vmap(lambda _: L.storage(self.nets, self.obs_size, self.writes))(jnp.arange(self.n_bufs))
+        optional = {}  # the fields that are None unless the run has procedural rooms / a learner memory
         if self.rooms.procedural:
             stream = self.rooms.stream(key)
-            rooms = {"room_stream": stream, "world": self.rooms.draw(stream, 0, room_density(hp, 0))}
-        params = self.env_params(hp, rooms.get("world"))
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_robots), params)
+            optional = {"room_stream": stream, "world": self.rooms.draw(stream, 0, room_density(hp, 0))}
+        params = self.env_params(hp, optional.get("world"))
+        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_envs), params)
+        memory = L.memory(self.nets)
+        if memory is not None:
+            optional["memory"] = jax.tree.map(lambda x: jnp.broadcast_to(x, (self.num_envs, *x.shape)), memory)
+            optional["first"] = jnp.ones(self.num_envs, bool)
         return TrainState(
-            **rooms,
+            **optional,
             agents=agents,
             buffers=buffers,
             env_state=env_state,
@@ -162,27 +183,41 @@ class Trainer:
 
     # ------------------------------------------------------------------ pieces
 
-    def _act(self, state: TrainState, key: jax.Array) -> jax.Array:
-        actor = state.agents.actor
+    def _by_net(self, fn, agents, *per_env):
+        """fn(agent, *rows) for every environment row with its robot's network (the one network
+        of a shared-network method); per_env leaves [environments, ...], and so are the outputs."""
+        in_axes = (None,) + (0,) * len(per_env)
         if self.method.shared_network:
-            greedy = jax.vmap(ddpg.act, in_axes=(None, None, 0))(
-                self.nets, jax.tree.map(lambda p: p[0], actor), state.obs
-            )
-        else:
-            greedy = jax.vmap(ddpg.act, in_axes=(None, 0, 0))(self.nets, actor, state.obs)
-        keys = jax.random.split(key, self.num_robots)
-        return jax.vmap(ddpg.epsilon_greedy, in_axes=(0, 0, None))(keys, greedy, state.epsilon)
+            return jax.vmap(fn, in_axes=in_axes)(jax.tree.map(lambda p: p[0], agents), *per_env)
+        if self.envs_per_robot == 1:
+            return jax.vmap(fn)(agents, *per_env)
+        n = self.envs_per_robot
+        split = jax.tree.map(lambda x: x.reshape(self.n_nets, n, *x.shape[1:]), per_env)
+        out = jax.vmap(jax.vmap(fn, in_axes=in_axes))(agents, *split)
+        return jax.tree.map(lambda x: x.reshape(self.num_envs, *x.shape[2:]), out)
 
-    def _capacity(self, hp: HParams) -> jax.Array:
-        """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
-        return jnp.minimum(hp["ddpg.buffer_size"], self.cfg.buffer_rows)
+    def _explore(self, state: TrainState, key: jax.Array, hp: HParams):
+        """(actions f32[environments, 2], the learner's extras, its new memory) for one step."""
 
-    def _update(self, agents: ddpg.AgentState, buffers: rb.Transition, key, count, hp: HParams):
-        """One gradient step for every network, each on its own batch."""
+        def one(agent, obs, k, memory, first):
+            return self.learner.explore(self.nets, agent, obs, k, hp, state.epsilon, memory, first)
+
+        keys = jax.random.split(key, self.num_envs)
+        return self._by_net(one, state.agents, state.obs, keys, state.memory, state.first)
+
+    def _act(self, state: TrainState, key: jax.Array, hp: HParams | None = None) -> jax.Array:
+        """The exploration actions f32[environments, 2] (hp: default the config's)."""
+        return self._explore(state, key, hparams_from_config(self.cfg) if hp is None else hp)[0]
+
+    def _per_robot(self, x: jax.Array, reduce=jnp.sum) -> jax.Array:
+        """[environments] -> [robots]: `reduce` over each robot's environments (x itself when 1)."""
+        return x if self.envs_per_robot == 1 else reduce(x.reshape(self.num_robots, self.envs_per_robot), axis=1)
+
+    def _update(self, agents, buffers, key, g, hp: HParams):
+        """One update event of every network, each on its own storage (or all on the shared one)."""
 
         def one(agent, buf, k):
-            batch = rb.sample(buf, k, self.cfg.ddpg.batch_size, count, self._capacity(hp))
-            return ddpg.update(self.nets, agent, batch, hp["ddpg.gamma"], hp["ddpg.lr"])
+            return self.learner.update(self.nets, agent, buf, k, g, self.writes, hp)
 
         keys = jax.random.split(key, self.n_nets)
         buf_axis = 0 if self.n_bufs == self.n_nets else None
@@ -194,37 +229,37 @@ class Trainer:
         return federation.federated_round(self, state, hp)
 
     def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
-        """One env step of every robot, with the periodic updates. g: global step (unbatched).
+        """One env step of every environment, with the periodic updates. g: global step (unbatched).
         Returns the new state and this step's `StepMetrics`."""
+        L = self.learner
         key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
-        actions = self._act(state, k_act)
-        env_keys = jax.random.split(k_env, self.num_robots)
+        actions, extra, memory = self._explore(state, k_act, hp)
+        env_keys = jax.random.split(k_env, self.num_envs)
         obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
             env_keys, state.env_state, actions, env_params
         )
         # s' is the true observation at the pose reached, also on a terminal step (obs2 is then
-        # the start of the next attempt); the (1 - D) mask cuts the bootstrap there.
-        rows = rb.Transition(state.obs, actions, reward, info["final_obs"], term.astype(jnp.float32))
-        rows = jax.tree.map(lambda x: x.reshape(self.n_bufs, self.writes, *x.shape[1:]), rows)
-        buffers = jax.vmap(rb.add, in_axes=(0, 0, None, None))(state.buffers, rows, g * self.writes, self._capacity(hp))
+        # the start of the next attempt): `terminated` cuts the bootstrap there, `truncated` does not.
+        rec = Record(state.obs, actions, reward, info["final_obs"], term, trunc, state.first, extra, state.memory)
+        rec = jax.tree.map(lambda x: x.reshape(self.n_bufs, self.writes, *x.shape[1:]), rec)
+        buffers = jax.vmap(lambda b, r: L.store(self.nets, b, r, g, self.writes, hp))(state.buffers, rec)
 
-        count = (g + 1) * self.writes
-        ready = count >= self.cfg.ddpg.batch_size
-        do_update = ready & ((g + 1) % hp["ddpg.train_every"] == 0)
+        do_update = L.due(self.nets, g, self.writes, hp)
         zeros = jnp.zeros(self.n_nets)
         agents, losses = jax.lax.cond(
             do_update,
-            lambda a: self._update(a, buffers, k_upd, count, hp),
-            lambda a: (a, {"critic_loss": zeros, "actor_loss": zeros, "q": zeros}),
+            lambda a: self._update(a, buffers, k_upd, g, hp),
+            lambda a: (a, {m: zeros for m in L.metrics}),
             state.agents,
         )
-        do_target = ready & ((g + 1) % hp["ddpg.target_every"] == 0)
-        agents = jax.lax.cond(
-            do_target,
-            lambda a: jax.vmap(ddpg.update_targets, in_axes=(0, None))(a, hp["ddpg.rho"]),
-            lambda a: a,
-            agents,
-        )
+        if L.targets is not None:  # a target update of its own period (DDPG's T_target)
+            agents = jax.lax.cond(
+                L.targets_due(self.nets, g, self.writes, hp),
+                lambda a: jax.vmap(lambda x: L.targets(self.nets, x, hp))(a),
+                lambda a: a,
+                agents,
+            )
+        mean_reward = self._per_robot(reward, jnp.mean)
         state = state.replace(
             agents=agents,
             buffers=buffers,
@@ -232,20 +267,20 @@ class Trainer:
             obs=obs2,
             key=key,
             epsilon=state.epsilon * hp["ddpg.epsilon_decay"],
-            reward_sum=state.reward_sum + reward,
+            reward_sum=state.reward_sum + mean_reward,
             reward_steps=state.reward_steps + 1.0,
+            memory=memory,
+            first=None if state.first is None else term,  # after a goal or collision obs2 is a start
         )
         fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
             fed_now = (g + 1) % hp["fed.period"] == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
         out = StepMetrics(
-            reward=reward,
-            goals=info["goal"].astype(jnp.int32),
-            collisions=info["collision"].astype(jnp.int32),
-            critic_loss=losses["critic_loss"],
-            actor_loss=losses["actor_loss"],
-            q=losses["q"],
+            reward=mean_reward,
+            goals=self._per_robot(info["goal"].astype(jnp.int32)),
+            collisions=self._per_robot(info["collision"].astype(jnp.int32)),
+            losses=losses,
             updates=do_update.astype(jnp.int32),
             fed_events=fed_now.astype(jnp.int32),
             fed_clients=fs["clients"],
@@ -258,8 +293,9 @@ class Trainer:
         state, world = self.rooms.episode_world(state, hp, ep)  # new rooms / placements when configured
         env_params = self.env_params(hp, world)
         key, k_reset = jax.random.split(state.key)
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_robots), env_params)
-        state = state.replace(obs=obs, env_state=env_state, key=key)
+        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_envs), env_params)
+        first = None if state.first is None else jnp.ones_like(state.first)
+        state = state.replace(obs=obs, env_state=env_state, key=key, first=first)
         steps = ep * self.T + jnp.arange(self.T)
         step = partial(self._step, hp, env_params)
 
@@ -276,18 +312,19 @@ class Trainer:
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
         metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
+        metrics |= loss_metrics(sums, self.learner.metrics)
         metrics["fed_events"] = metrics["fed_events"] + fed_end
         metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
         metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
         metrics["epsilon"] = state.epsilon
-        metrics["params_finite"] = jax.vmap(all_finite)((state.agents.actor, state.agents.critic))  # [n_nets]
+        metrics["params_finite"] = jax.vmap(all_finite)(self.learner.shared(state.agents))  # [n_nets]
         if self.probe is not None:  # run.eval_every: greedy success on the held-out probe, NaN between
             every = self.cfg.run.eval_every
             metrics["eval_success"] = jax.lax.cond(
                 (ep + 1) % every == 0,
                 lambda a: self.probe.success(a, hp),
                 lambda a: jnp.full(self.n_nets, jnp.nan),
-                state.agents.actor,
+                self.policy(state.agents),
             )
         if self.pad:  # the padding clients' rows are not results
             metrics = jax.tree.map(
@@ -346,6 +383,8 @@ class Trainer:
         )
 
     def num_params(self) -> int:
-        """Parameters of one agent (actor + critic), what one client sends per federated round."""
-        st = jax.eval_shape(lambda k: ddpg.init_agent(self.nets, k, self.obs_size), jax.random.key(0))
-        return int(sum(np.prod(x.shape) for x in jax.tree.leaves((st.actor, st.critic))))
+        """Parameters of one agent's SHARED fields (DDPG: actor + critic), what one client sends
+        per federated round (targets aside)."""
+        hp = hparams_from_config(self.cfg)
+        st = jax.eval_shape(lambda k: self.learner.init(self.nets, k, self.obs_size, hp), jax.random.key(0))
+        return int(sum(np.prod(x.shape) for x in jax.tree.leaves(self.learner.shared(st))))

@@ -1,0 +1,118 @@
+"""PPO's functions for its entry in `learners.LEARNERS`: the rollout it stores and when it learns.
+
+Storage is one `ppo.Rollout` per robot, [ppo.rollout, rows] (rows = the robot's environments):
+step g writes slot g % T_roll, and the update runs after the slot T_roll - 1 is written, so every
+update sees exactly the last T_roll steps of every environment, under the parameters that acted
+(a federated round between two updates changes them; rounds at episode ends fall on update
+boundaries when ppo.rollout divides env.episode_length). `reset` is the trainer's `first` flag
+(obs_t starts an episode: after the episode's reset, or after a goal or collision put the robot back
+at a start), `hidden` the GRU states before the rollout's first step. `terminated` and `truncated`
+come from the env apart: GAE bootstraps from V(next_obs) at a time-out (agents/ppo.py).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from fedjax_nav.agents import ppo
+
+METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")
+
+
+@struct.dataclass
+class OnPolicyNets:
+    ppo: ppo.Nets = struct.field(pytree_node=False)
+    rollout: int = struct.field(pytree_node=False)  # T_roll
+
+
+def make_nets(v: dict) -> OnPolicyNets:
+    nets = ppo.make_nets(
+        hidden=v["ppo.hidden"],
+        depth=v["ppo.depth"],
+        activation=v["ppo.activation"],
+        recurrent=v["ppo.recurrent"] == "gru",
+        gru=v["ppo.gru_hidden"],
+        epochs=v["ppo.epochs"],
+        minibatches=v["ppo.minibatches"],
+    )
+    return OnPolicyNets(nets, v["ppo.rollout"])
+
+
+def hparams(hp) -> ppo.HParams:
+    """ppo.HParams from the trainer's HParams (ppo.value_clip 0 = not clipped)."""
+    vc = hp["ppo.value_clip"]
+    return ppo.HParams(
+        lr=hp["ppo.lr"],
+        gamma=hp["ppo.gamma"],
+        gae_lambda=hp["ppo.gae_lambda"],
+        clip_eps=hp["ppo.clip_eps"],
+        value_clip=jnp.where(vc > 0, vc, jnp.inf),
+        vf_coef=hp["ppo.vf_coef"],
+        ent_coef=hp["ppo.ent_coef"],
+        max_grad_norm=hp["ppo.max_grad_norm"],
+    )
+
+
+def init(nets: OnPolicyNets, key, obs_size: int, hp) -> ppo.State:
+    return ppo.init(nets.ppo, key, obs_size, hp["ppo.init_log_std"])
+
+
+def memory(nets: OnPolicyNets) -> ppo.Hidden:
+    return ppo.initial_hidden(nets.ppo)
+
+
+def explore(nets: OnPolicyNets, state, obs, key, hp, epsilon, memory, first):
+    step, hidden = ppo.act(nets.ppo, state, obs, key, memory, first)
+    return step.action, (step.raw_action, step.log_prob), hidden
+
+
+def greedy(nets: OnPolicyNets, actor, obs, memory, first):
+    return ppo.greedy_actor(nets.ppo, actor, obs, memory, first)
+
+
+def storage(nets: OnPolicyNets, obs_size: int, rows: int) -> ppo.Rollout:
+    T, A, H = nets.rollout, nets.ppo.action_size, nets.ppo.gru
+
+    def z(*shape, dtype=jnp.float32):
+        return jnp.zeros((T, rows, *shape), dtype)
+
+    return ppo.Rollout(
+        obs=z(obs_size),
+        raw_action=z(A),
+        log_prob=z(),
+        reward=z(),
+        next_obs=z(obs_size),
+        terminated=z(),
+        truncated=z(),
+        reset=z(dtype=bool),
+        hidden=ppo.Hidden(jnp.zeros((rows, H)), jnp.zeros((rows, H))),
+    )
+
+
+def store(nets: OnPolicyNets, ro: ppo.Rollout, rec, g, rows: int, hp) -> ppo.Rollout:
+    """Write step g's rows at slot g % T_roll (and, at slot 0, the GRU states before it)."""
+    t = g % nets.rollout
+    raw, logp = rec.extra
+    new = {
+        "obs": rec.obs,
+        "raw_action": raw,
+        "log_prob": logp,
+        "reward": rec.reward,
+        "next_obs": rec.next_obs,
+        "terminated": rec.terminated.astype(jnp.float32),
+        "truncated": rec.truncated.astype(jnp.float32),
+        "reset": rec.first,
+    }
+    ro = ro.replace(**{k: getattr(ro, k).at[t].set(v) for k, v in new.items()})
+    return ro.replace(hidden=jax.tree.map(lambda old, h: jnp.where(t == 0, h, old), ro.hidden, rec.memory))
+
+
+def due(nets: OnPolicyNets, g, rows: int, hp):
+    return (g + 1) % nets.rollout == 0
+
+
+def update(nets: OnPolicyNets, state, ro, key, g, rows: int, hp):
+    state, info = ppo.update(nets.ppo, state, ro, key, hparams(hp))
+    return state, {m: info[m] for m in METRICS}

@@ -1,0 +1,289 @@
+"""Learners as data: everything the trainer needs of DDPG, TD3, SAC and PPO, one table entry each
+(as `federated.aggregators.RULES` is for the servers' rules). The trainer calls these functions and
+never looks at a learner's name (docs/learners.md, "The trainer's side").
+
+    learner = LEARNERS[cfg.learner]
+    nets = learner.make_nets(config.values(cfg))     # static: modules, batch and loop sizes
+    state = learner.init(nets, key, obs_size, hp)      # one agent
+    action, extra, memory = learner.explore(nets, state, obs, key, hp, epsilon, memory, first)
+    storage = learner.storage(nets, obs_size, rows)    # one buffer: replay rows, or a rollout
+    storage = learner.store(nets, storage, record, g, rows, hp)
+    state, losses = learner.update(nets, state, storage, key, g, rows, hp)    # where learner.due(...)
+
+Every function is for ONE agent, ONE buffer or ONE environment, unbatched (the trainer adds agents,
+environments and seeds with vmap). `hp` is the trainer's HParams (traced config values by dotted
+name: each learner reads its own section and the shared off-policy ones of `ddpg.*`); `g` is the
+global step, an unbatched i32 (the gates stay real conds); `rows` (static) is how many rows one
+buffer receives per step. `record` is a `Record` with a leading [rows] axis.
+
+Off-policy learners (DDPG, TD3, SAC) store 1-step rows in the replay buffer (`buffer.Transition`,
+`done` = terminated only, `next_obs` = the true last observation: a time-out bootstraps) and learn
+`gradient_steps` batches per update event. PPO (learner_ppo.py) keeps a rollout of `ppo.rollout`
+steps and learns from it when it is full.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from fedjax_nav.agents import buffer as rb
+from fedjax_nav.agents import ddpg, ppo, sac, td3
+from fedjax_nav.agents import learner_ppo as lp
+from fedjax_nav.agents.networks import Critic
+from fedjax_nav.agents.networks_extra import SquashedGaussianActor
+from fedjax_nav.agents.offpolicy import one_step
+
+
+class Record(NamedTuple):
+    """What one env step hands to a learner's storage (leading axis: the buffer's rows)."""
+
+    obs: jax.Array  # f32[obs] what the policy saw
+    action: jax.Array  # f32[A] the box action taken
+    reward: jax.Array  # f32[]
+    next_obs: jax.Array  # f32[obs] the true observation reached (an episode's last one at its end)
+    terminated: jax.Array  # bool[] goal or collision: no bootstrap
+    truncated: jax.Array  # bool[] the episode's last step: bootstrap from next_obs
+    first: Any  # bool[] obs starts an episode (learners with a memory), else None
+    extra: Any  # what `explore` returned beside the action (PPO: raw action, log-density)
+    memory: Any  # the learner's carry before this step (PPO: the GRU states), else None
+
+
+class Learner(NamedTuple):
+    """A learner as data plus pure functions (the module docstring gives the call shapes)."""
+
+    name: str
+    on_policy: bool  # learns from its own policy's rollout: no buffer to share (config.ON_POLICY_LEARNERS)
+    metrics: tuple[str, ...]  # the losses `update` reports: the trainer's per-network metrics
+    make_nets: Callable  # (values: dict of config values by dotted name) -> nets (static)
+    init: Callable  # (nets, key, obs_size, hp) -> state
+    memory: Callable  # (nets) -> one environment's carry at an episode start, or None (no memory)
+    explore: Callable  # (nets, state, obs, key, hp, epsilon, memory, first) -> (action, extra, memory)
+    policy: Callable  # (state) -> the greedy policy's parameters (probe, evaluation, export)
+    greedy: Callable  # (nets, policy, obs, memory, first) -> (action, memory)
+    storage: Callable  # (nets, obs_size, rows) -> one empty buffer
+    store: Callable  # (nets, storage, record, g, rows, hp) -> storage
+    due: Callable  # (nets, g, rows, hp) -> bool[]: an update event after step g
+    update: Callable  # (nets, state, storage, key, g, rows, hp) -> (state, {metric: f32[]})
+    shared_fields: tuple[str, ...]  # the module's SHARED: what a federated round averages
+    target_fields: tuple[str, ...]  # the module's TARGETS: averaged too with fed.include_targets
+    targets_due: Callable | None = None  # (nets, g, rows, hp) -> bool[]: a separate target update (DDPG)
+    targets: Callable | None = None  # (nets, state, hp) -> state
+
+    def shared(self, state, include_targets: bool = False) -> dict:
+        """What a client sends in a federated round: its SHARED fields (and TARGETS if asked)."""
+        names = self.shared_fields + (self.target_fields if include_targets else ())
+        return {n: getattr(state, n) for n in names}
+
+    def take_shared(self, state, new: dict):
+        """`state` with what a round sent back (`shared`'s keys) put in place."""
+        return state.replace(**new)
+
+
+# ----------------------------------------------------------------------------- off-policy
+
+
+@struct.dataclass
+class OffPolicyNets:
+    """The modules (duck-typed as ddpg.Nets, td3.Nets, sac.Nets: `actor` and `critic`) and the
+    replay loop's static sizes."""
+
+    actor: nn.Module = struct.field(pytree_node=False)
+    critic: nn.Module = struct.field(pytree_node=False)
+    batch_size: int = struct.field(pytree_node=False)
+    gradient_steps: int = struct.field(pytree_node=False)  # per update event, each on its own batch
+    buffer_rows: int = struct.field(pytree_node=False)  # allocated rows (the capacity is traced up to it)
+
+
+def _off_policy_nets(actor_cls):
+    def make(v: dict) -> OffPolicyNets:
+        h, d, a = v["ddpg.hidden"], v["ddpg.depth"], v["ddpg.activation"]
+        rows = v["ddpg.buffer_alloc"] or v["ddpg.buffer_size"]
+        return OffPolicyNets(actor_cls(h, d, a), Critic(h, d, a), v["ddpg.batch_size"], v["ddpg.gradient_steps"], rows)
+
+    return make
+
+
+def capacity(nets: OffPolicyNets, hp) -> jax.Array:
+    """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
+    return jnp.minimum(hp["ddpg.buffer_size"], nets.buffer_rows)
+
+
+def _replay(nets, obs_size: int, rows: int) -> rb.Transition:
+    return rb.init(nets.buffer_rows, obs_size)
+
+
+def _store_replay(nets, buf: rb.Transition, rec: Record, g, rows: int, hp) -> rb.Transition:
+    t = rb.Transition(rec.obs, rec.action, rec.reward, rec.next_obs, rec.terminated.astype(jnp.float32))
+    return rb.add(buf, t, g * rows, capacity(nets, hp))
+
+
+def _ready(nets, g, rows: int):
+    return (g + 1) * rows >= nets.batch_size
+
+
+def _due_replay(nets, g, rows: int, hp):
+    """Every ddpg.train_every steps once the buffer holds a batch."""
+    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.train_every"] == 0)
+
+
+def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
+    """An update event: `gradient_steps` calls of grad_step(nets, state, sample, key, hp, i), where
+    sample(key) draws a fresh batch and i is the gradient step's index in the run (unbatched);
+    the losses averaged over them."""
+
+    def update(nets, state, buf, key, g, rows: int, hp):
+        count, cap, n = (g + 1) * rows, capacity(nets, hp), nets.gradient_steps
+
+        def sample(k):
+            return rb.sample(buf, k, nets.batch_size, count, cap)
+
+        def one(state, k, i):
+            state, losses = grad_step(nets, state, sample, k, hp, i)
+            return state, {m: losses[m] for m in metrics}
+
+        index = ((g + 1) // hp["ddpg.train_every"] - 1) * n  # update events before this one x gradient steps
+        if n == 1:
+            return one(state, key, index)
+        steps = (jax.random.split(key, n), index + jnp.arange(n, dtype=jnp.int32))
+        state, losses = jax.lax.scan(lambda s, x: one(s, *x), state, steps)
+        return state, jax.tree.map(jnp.mean, losses)
+
+    return update
+
+
+def _ddpg_step(nets, state, sample, key, hp, i):
+    return ddpg.update(nets, state, sample(key), hp["ddpg.gamma"], hp["ddpg.lr"])
+
+
+def _td3_hp(hp) -> td3.HParams:
+    return td3.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["td3.tau"], hp["td3.policy_noise"], hp["td3.noise_clip"])
+
+
+def _td3_step(nets, state, sample, key, hp, i):
+    k_batch, k_noise = jax.random.split(key)
+    actor_step = i % hp["td3.policy_delay"] == 0  # the policy delay, from the unbatched step counter
+    batch = one_step(sample(k_batch), hp["ddpg.gamma"])
+    return td3.update(nets, state, batch, k_noise, _td3_hp(hp), actor_step)
+
+
+def _sac_hp(hp) -> sac.HParams:
+    return sac.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["sac.alpha_lr"], hp["sac.tau"], hp["sac.target_entropy"])
+
+
+def _sac_step(nets, state, sample, key, hp, i):
+    k_batch, k_step = jax.random.split(key)
+    return sac.update(nets, state, one_step(sample(k_batch), hp["ddpg.gamma"]), k_step, _sac_hp(hp))
+
+
+def _no_memory(nets):
+    return None
+
+
+def _actor(state):
+    return state.actor
+
+
+def _stateless(greedy: Callable) -> Callable:
+    def act(nets, policy, obs, memory, first):
+        return greedy(nets, policy, obs), memory
+
+    return act
+
+
+OFF_POLICY_METRICS = ("critic_loss", "actor_loss", "q")
+
+
+def _ddpg_explore(nets, state, obs, key, hp, epsilon, memory, first):
+    return ddpg.epsilon_greedy(key, ddpg.act(nets, state.actor, obs), epsilon), (), memory
+
+
+def _td3_explore(nets, state, obs, key, hp, epsilon, memory, first):
+    return td3.act(nets, state.actor, obs, key, hp["td3.expl_noise"]), (), memory
+
+
+def _sac_explore(nets, state, obs, key, hp, epsilon, memory, first):
+    return sac.act(nets, state.actor, obs, key), (), memory
+
+
+def _ddpg_targets_due(nets, g, rows: int, hp):
+    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.target_every"] == 0)
+
+
+_OFF = {"memory": _no_memory, "policy": _actor, "storage": _replay, "store": _store_replay, "due": _due_replay}
+
+DDPG = Learner(
+    name="ddpg",
+    on_policy=False,
+    metrics=OFF_POLICY_METRICS,
+    make_nets=_off_policy_nets(ddpg.Actor),
+    init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
+    explore=_ddpg_explore,
+    greedy=_stateless(ddpg.act),
+    update=_replay_update(_ddpg_step, OFF_POLICY_METRICS),
+    shared_fields=("actor", "critic"),
+    target_fields=("actor_targ", "critic_targ"),
+    targets_due=_ddpg_targets_due,
+    targets=lambda nets, state, hp: ddpg.update_targets(state, hp["ddpg.rho"]),
+    **_OFF,
+)
+
+TD3 = Learner(
+    name="td3",
+    on_policy=False,
+    metrics=OFF_POLICY_METRICS,
+    make_nets=_off_policy_nets(ddpg.Actor),
+    init=lambda nets, key, obs_size, hp: td3.init(nets, key, obs_size),
+    explore=_td3_explore,
+    greedy=_stateless(td3.greedy),
+    update=_replay_update(_td3_step, OFF_POLICY_METRICS),
+    shared_fields=td3.SHARED,
+    target_fields=td3.TARGETS,
+    **_OFF,
+)
+
+SAC_METRICS = (*OFF_POLICY_METRICS, "alpha", "entropy")
+SAC = Learner(
+    name="sac",
+    on_policy=False,
+    metrics=SAC_METRICS,
+    make_nets=_off_policy_nets(SquashedGaussianActor),
+    init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp["sac.init_alpha"]),
+    explore=_sac_explore,
+    greedy=_stateless(sac.greedy),
+    update=_replay_update(_sac_step, SAC_METRICS),
+    shared_fields=sac.SHARED,
+    target_fields=sac.TARGETS,
+    **_OFF,
+)
+
+PPO = Learner(
+    name="ppo",
+    on_policy=True,
+    metrics=lp.METRICS,
+    make_nets=lp.make_nets,
+    init=lp.init,
+    memory=lp.memory,
+    explore=lp.explore,
+    policy=_actor,
+    greedy=lp.greedy,
+    storage=lp.storage,
+    store=lp.store,
+    due=lp.due,
+    update=lp.update,
+    shared_fields=ppo.SHARED,
+    target_fields=ppo.TARGETS,
+)
+
+LEARNERS: dict[str, Learner] = {x.name: x for x in (DDPG, TD3, SAC, PPO)}
+
+
+def get(name: str) -> Learner:
+    try:
+        return LEARNERS[name]
+    except KeyError:
+        raise ValueError(f"unknown learner {name!r}; allowed: {', '.join(LEARNERS)}") from None
