@@ -302,15 +302,16 @@ def write_metrics(run_dir: str | Path, df) -> Path:
 
 
 def flatten_params(agents) -> dict[str, np.ndarray]:
-    """{"actor/params/Dense_0/kernel": array, ...} from an AgentState-like object (or dict) with
-    `actor` and `critic` pytrees."""
+    """{"actor/params/Dense_0/kernel": array, ...}: every leaf of a dict of pytrees (what a
+    learner shares: `Learner.shared(agents)`), or of the `actor` and `critic` of an AgentState-like
+    object. A bare array (PPO's log_std) is kept under its own name."""
     import jax
 
+    trees = agents if isinstance(agents, dict) else {name: getattr(agents, name) for name in NETWORKS}
     flat = {}
-    for name in NETWORKS:
-        tree = agents[name] if isinstance(agents, dict) else getattr(agents, name)
+    for name, tree in trees.items():
         for kp, leaf in jax.tree_util.tree_flatten_with_path(jax.device_get(tree))[0]:
-            flat[name + "/" + "/".join(str(getattr(k, "key", k)) for k in kp)] = np.asarray(leaf)
+            flat["/".join([name, *(str(getattr(k, "key", k)) for k in kp)])] = np.asarray(leaf)
     return flat
 
 

@@ -8,6 +8,8 @@ import yaml
 
 from fedjax_nav import cli
 from fedjax_nav.config import (
+    SECTIONS,
+    TOP_LEVEL,
     Config,
     ConfigError,
     apply_overrides,
@@ -189,7 +191,7 @@ def test_round_trip_to_dict_from_dict_and_save_load(path, tmp_path):
     assert load_config(tmp_path / "c.yaml") == cfg
     # the saved file is plain YAML with every section and field (one to one with the dataclasses)
     saved = yaml.safe_load((tmp_path / "c.yaml").read_text())
-    assert set(saved) == {"method", "env", "ddpg", "fed", "run", "robot"}
+    assert set(saved) == {*TOP_LEVEL, *SECTIONS} and list(saved)[:2] == ["method", "learner"]
     assert set(saved["ddpg"]) == set(to_dict(Config())["ddpg"])
 
 

@@ -398,6 +398,15 @@ def test_every_traced_field_is_an_input_the_program_uses():
             TINY_SET + ["run.episodes=1", "env.rooms=procedural", "env.room_families=[cylinders]"],
         )
     )
+    # each learner's own section acts when that learner trains (agents/learners.py)
+    small_ppo = ["ppo.rollout=8", "ppo.minibatches=1", "ppo.epochs=1", "ppo.hidden=16"]
+    for learner in ("td3", "sac", "ppo"):
+        unused &= unused_by(
+            load_config(
+                ROOT / "configs" / "thesis" / "flddpg.yaml",
+                TINY_SET + ["run.episodes=1", f"learner={learner}"] + (small_ppo if learner == "ppo" else []),
+            )
+        )
     assert not unused, f"traced fields the program never reads: {sorted(unused)}"
 
 

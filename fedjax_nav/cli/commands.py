@@ -89,8 +89,11 @@ def _train(args: argparse.Namespace) -> int:
                 f"{f', {jax.process_count()} processes' if args.distributed else ''})"
             )
         )
+        n_envs = cfg.env.envs_per_robot
+        envs = f" ({n_envs} environments per robot)" if n_envs > 1 else ""
         say(
-            f"{verb} {cfg.method} on {', '.join(cfg.env.worlds)}: {cfg.run.episodes} episodes x "
+            f"{verb} {cfg.method}{'' if cfg.learner == 'ddpg' else f' ({cfg.learner})'} on "
+            f"{', '.join(cfg.env.worlds)}{envs}: {cfg.run.episodes} episodes x "
             f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s){where} -> {out}"
         )
         s = train(

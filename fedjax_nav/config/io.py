@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from fedjax_nav.config import SECTIONS, Config, ConfigError
+from fedjax_nav.config import SECTIONS, TOP_LEVEL, Config, ConfigError
 from fedjax_nav.config.validate import from_dict, shorten, show
 
 # Bounds of what is read (docs/reliability.md, "Hostile inputs"): a config or sweep file is a few
@@ -20,7 +20,9 @@ PATH_CHARS = 240  # a file name longer than this is cut in messages
 
 
 def to_dict(cfg: Config) -> dict:
-    out = {"method": cfg.method}
+    """The config as the YAML file holds it: the top-level fields (method, learner), then each
+    section."""
+    out = {name: getattr(cfg, name) for name in TOP_LEVEL}
     for s in SECTIONS:
         sec = dataclasses.asdict(getattr(cfg, s))
         out[s] = {k: list(v) if isinstance(v, tuple) else v for k, v in sec.items()}
@@ -45,8 +47,8 @@ def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: 
         key = key.strip()
         value = parse_yaml(raw, f"{src} {shorten(key)}")
         parts = key.split(".")
-        if parts == ["method"]:
-            data["method"] = value
+        if len(parts) == 1 and parts[0] in TOP_LEVEL:  # method=..., learner=...
+            data[parts[0]] = value
             continue
         if len(parts) != 2 or parts[0] not in SECTIONS:
             raise ConfigError(f"{src}: unknown key {show(key)} (use section.key with section in {', '.join(SECTIONS)})")
@@ -141,7 +143,7 @@ def save_config(cfg: Config, path: str | Path) -> None:
 def diff(a: Config, b: Config) -> list[str]:
     """Dotted names of the fields that differ."""
     da, db = to_dict(a), to_dict(b)
-    out = ["method"] if da["method"] != db["method"] else []
+    out = [name for name in TOP_LEVEL if da[name] != db[name]]
     for s in SECTIONS:
         out += [f"{s}.{k}" for k in da[s] if da[s][k] != db[s][k]]
     return out

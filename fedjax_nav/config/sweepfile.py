@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from fedjax_nav.config import (
+    TOP_LEVEL,
     Config,
     ConfigError,
     DDPGConfig,
@@ -88,7 +89,7 @@ class Sweep:
 def flat_config(cfg: Config) -> dict:
     """{"method": ..., "ddpg.gamma": ..., ...}: every field of the config by its dotted name."""
     d = to_dict(cfg)
-    out = {"method": d.pop("method")}
+    out = {name: d.pop(name) for name in TOP_LEVEL}
     for s, sec in d.items():
         out.update({f"{s}.{k}": v for k, v in sec.items()})
     return out

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import re
 import sys
 import warnings
@@ -79,7 +80,7 @@ class Checkpointer:
             self.manager.save(
                 episodes_done,
                 args=ocp.args.Composite(
-                    state=ocp.args.StandardSave(states), episode_history=ocp.args.StandardSave(metrics)
+                    state=ocp.args.StandardSave(_storable(states)), episode_history=ocp.args.StandardSave(metrics)
                 ),
             )
 
@@ -151,9 +152,10 @@ class Checkpointer:
         step = self.latest() if step is None else step
         if step is None:
             raise CheckpointError(f"{self.dir}: no checkpoint to resume from")
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
+        stored = _storable(template)
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, stored)
         path = self.dir / str(step)
-        _check_stored_shapes(path, template)  # before any read: e.g. other network sizes, by field
+        _check_stored_shapes(path, stored)  # before any read: e.g. other network sizes, by field
         _quiet_abandoned_reads()
         try:
             out = self.manager.restore(
@@ -173,20 +175,21 @@ class Checkpointer:
             raise CheckpointError(
                 f"{path}: cannot restore this checkpoint into the run's state ({_one_line(e)})"
             ) from None
-        _check_shapes(out.state, template, path)
+        out_state = _unstorable(out.state, template)
+        _check_shapes(out_state, template, path)
         history = {k: np.asarray(v) for k, v in out.episode_history.items()}
         history.pop(_CONFIG, None)
         saved_crc = history.pop(_CRC, None)
         if saved_crc is not None:  # checkpoints written before checksums existed have none
-            crc = _checksums(out.state)
+            crc = _checksums(out_state)
             bad = np.nonzero(crc != saved_crc)[0] if crc.shape == saved_crc.shape else [0]
             if len(bad):
-                kp = jax.tree_util.tree_flatten_with_path(out.state)[0][bad[0]][0]
+                kp = jax.tree_util.tree_flatten_with_path(out_state)[0][bad[0]][0]
                 raise CheckpointError(
                     f"{path}: field {'.'.join(_names(kp))} does not match the checksum saved with "
                     "it; the checkpoint is corrupted"
                 )
-        return out.state, history
+        return out_state, history
 
     def restore_intact(self, template, steps, check=None, damaged=None, asked: int | None = None):
         """The first of `steps` (newest first) that restores: (step, states, metrics, damaged),
@@ -228,6 +231,22 @@ class Checkpointer:
 
 
 _CRC = "state_crc32"  # key in the episode_history item
+
+
+def _empty(x) -> bool:
+    return math.prod(x.shape) == 0
+
+
+def _storable(tree):
+    """Zero-size leaves (a feed-forward PPO's empty GRU state) as one zero element: orbax refuses
+    to save arrays of size 0. `_unstorable` gives them back the template's shape."""
+    return jax.tree.map(lambda x: np.zeros((1,), x.dtype) if _empty(x) else x, tree)
+
+
+def _unstorable(tree, template):
+    return jax.tree.map(lambda x, t: np.zeros(t.shape, t.dtype) if _empty(t) else x, tree, template)
+
+
 _CONFIG = "config_json"  # key in the episode_history item: the run's config, as UTF-8 JSON bytes
 
 

@@ -60,9 +60,8 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
             "goals": tr(m["goals"]).ravel(),
             "reached_goal": (tr(m["goals"]) > 0).ravel().astype(int),
             "collisions": tr(m["collisions"]).ravel(),
-            "critic_loss": per_net(m["critic_loss"]).ravel(),
-            "actor_loss": per_net(m["actor_loss"]).ravel(),
-            "q": per_net(m["q"]).ravel(),
+            # the learner's losses, per network (DDPG/TD3: critic_loss, actor_loss, q; docs/learners.md)
+            **{name: per_net(m[name]).ravel() for name in trainer.learner.metrics},
             "fed_events": per_seed(m["fed_events"]).ravel(),
             "fed_bytes": per_seed(m["fed_clients"]).ravel() * fed_bytes_per_client(trainer),
             "fed_clients": per_seed(m["fed_clients"]).ravel(),
@@ -140,15 +139,19 @@ def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> 
     parameter, or with a mean |Q| estimate above run.max_abs_q or a critic loss above
     run.max_critic_loss (host-side, after each chunk; leaves [seeds, episodes, nets or robots])."""
     r = cfg.run
-    q, loss = np.abs(np.asarray(m["q"])), np.asarray(m["critic_loss"])
+    said = {"critic_loss": "the critic loss", "actor_loss": "the actor loss", "q": "the Q estimate"}
     checks = [
-        ("NaN/Inf in the critic loss", ~np.isfinite(loss), None, True),
-        ("NaN/Inf in the actor loss", ~np.isfinite(m["actor_loss"]), None, True),
-        ("NaN/Inf in the Q estimate", ~np.isfinite(q), None, True),
+        (f"NaN/Inf in {said.get(name, name)}", ~np.isfinite(np.asarray(m[name])), None, True)
+        for name in trainer.learner.metrics
+    ]
+    checks += [
         ("NaN/Inf in the parameters", ~np.asarray(m["params_finite"], bool), None, True),
         ("NaN/Inf in the reward", ~np.isfinite(m["reward"]), None, False),
     ]
-    if r.max_abs_q > 0:
+    # the divergence bounds read a Q estimate and a critic loss (the off-policy learners')
+    q = np.abs(np.asarray(m["q"])) if "q" in m else None
+    loss = np.asarray(m["critic_loss"]) if "critic_loss" in m else None
+    if r.max_abs_q > 0 and q is not None:
         checks.append(
             (
                 f"the mean |Q| estimate reached {{:.3g}}, above run.max_abs_q = {r.max_abs_q:g},",
@@ -157,7 +160,7 @@ def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> 
                 True,
             )
         )
-    if r.max_critic_loss > 0:
+    if r.max_critic_loss > 0 and loss is not None:
         checks.append(
             (
                 f"the critic loss reached {{:.3g}}, above run.max_critic_loss = {r.max_critic_loss:g},",

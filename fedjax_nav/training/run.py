@@ -440,5 +440,5 @@ def _finish(run: _Run, states, all_df, timings: dict) -> dict:
         return summary
     rundir.write_json(run.out / rundir.SUMMARY, summary)
     agents = jax.tree.map(lambda x: x[:, : run.trainer.n_real], final.agents) if run.trainer.pad else final.agents
-    rundir.write_params(run.out, agents)  # without the padding clients
+    rundir.write_params(run.out, run.trainer.learner.shared(agents))  # without the padding clients
     return summary

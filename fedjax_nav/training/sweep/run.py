@@ -82,7 +82,7 @@ def write_point(points_dir: Path, job: Job, trainer: Trainer, states, metrics: d
     )
     rundir.write_config(d, cfg)
     rundir.write_metrics(d, df)
-    rundir.write_params(d, states.agents)
+    rundir.write_params(d, trainer.learner.shared(states.agents))
     rundir.write_json(d / rundir.SUMMARY, summary)  # last: marks done
     return summary
 
