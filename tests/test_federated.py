@@ -273,3 +273,17 @@ def test_communication_with_a_step_period():
     # the period does not change the methods without a federated step
     se = communication(methods.get("seddpg"), period_unit="steps", period=64, **THESIS)
     assert se["n_comm"] == 13_248_000
+
+
+def test_soft_fedavg_and_the_robust_mean_are_one_weighted_sum():
+    """The method's soft rule and `fed.aggregator=mean` compute theta_w with the same sum, so
+    they agree to the bit (with 40 clients a dot product and a multiply-and-reduce differed in
+    the last bit on this CPU, and may differ more on a GPU in TF32)."""
+    p = random_params(21, k=40)
+    r = jnp.zeros(40)
+    tau = jnp.float32(0.5)
+    soft = jax.jit(lambda p: agg.make("soft", tau=tau).update(p, r, agg.EmptyState())[0])(p)
+    mean_rule = agg.make("mean", tau=tau)
+    mean = jax.jit(lambda p: mean_rule.update(p, r, mean_rule.init(p))[0])(p)
+    for a, b in zip(jax.tree.leaves(soft), jax.tree.leaves(mean)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
