@@ -24,6 +24,9 @@ before compiling), and how much that is above its RSS before compiling.
     python scripts/bench_dense.py --old                # + the unrolled program on dense rooms
     python scripts/bench_dense.py --sweep              # unrolled vs chunked by row count
     python scripts/bench_dense.py --record docs/dense_rooms.md
+
+The procedural families' env step (forest, warehouse, maze, cave against a sparse family):
+scripts/bench_dense_families.py, which reuses this script's timing helpers.
 """
 
 from __future__ import annotations

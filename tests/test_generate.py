@@ -6,6 +6,7 @@ Every family's rooms are drawn once per session (`batches`: 512 rooms per family
 compiled, vmapped call each) and shared by the tests.
 """
 
+import hashlib
 import json
 import math
 import types
@@ -125,11 +126,61 @@ def family_keys(family):
 def batches():
     """{family: (spec, stacked World [512], info)} drawn once per session."""
     out = {}
-    for family in gen.FAMILIES:
+    for family in gen.BASE_FAMILIES:
         spec = gen.RoomSpec(family=family)
         world, info = gen.generate_batch_with_info(family_keys(family), spec)
         out[family] = (spec, jax.device_get(world), jax.device_get(info))
     return out
+
+
+# ----------------------------------------------------------------------------- the base families are unchanged
+
+# sha256 (first 16 hex digits) of the session batches (World, then info: 50 suite rooms + 462
+# training rooms per family) and of 8 mixture rooms at density 0.4, recorded on CPU (jax 0.10.2)
+# with the generator as it was before the dense families were added: the base families' rooms,
+# their held-out suites included, must stay bit for bit what they were.
+BASE_DIGESTS = {
+    "cylinders": ("604787aa8e4c17a7", "f41ee00e3359fe28"),
+    "boxes": ("13233af2bb3f261d", "d44ca324c029f355"),
+    "walls": ("b787d741eade1565", "c5631c2c592c8ec7"),
+    "mixture": ("76275b4c2b7177ea", "1708c4c85a0e4fed"),
+}
+MIXTURE_DENSITY_04 = "788cb45516bfc278"
+# The base families' suites: (family, rooms, seed block, overrides) and the groups, as they were.
+BASE_SUITES = {
+    **{f"{f}-50": (f, 50, i, ()) for i, f in enumerate(gen.BASE_FAMILIES)},
+    **{f"{f}-50x4": (f, 50, 4 + i, (("goals_min", 4), ("goals_max", 4))) for i, f in enumerate(gen.BASE_FAMILIES)},
+    **{f"{f}-probe": (f, 4, 8 + i, (("goals_min", 2), ("goals_max", 2))) for i, f in enumerate(gen.BASE_FAMILIES)},
+}
+
+
+def digest(tree):
+    h = hashlib.sha256()
+    for leaf in jax.tree.leaves(tree):
+        a = np.asarray(leaf)
+        h.update(str(a.dtype).encode())
+        h.update(str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+@pytest.mark.parametrize("family", gen.BASE_FAMILIES)
+def test_base_family_rooms_are_bitwise_what_they_were(batches, family):
+    spec, world, info = batches[family]
+    assert spec == gen.make_spec(family) and (spec.width_min, spec.width_max) == (4.0, 12.0)
+    assert (digest(world), digest(info)) == BASE_DIGESTS[family]
+
+
+def test_base_family_density_and_suites_are_what_they_were():
+    spec = gen.RoomSpec(family="mixture")
+    keys = jax.vmap(gen.train_room_key)(jnp.arange(8))
+    assert digest(jax.jit(jax.vmap(lambda k: worlds.generate(k, spec, 0.4)))(keys)) == MIXTURE_DENSITY_04
+    for name, (family, n, block, overrides) in BASE_SUITES.items():
+        s = gen.SUITES[name]
+        assert (s.family, s.rooms, s.index, s.overrides) == (family, n, block, overrides), name
+    assert gen.SUITE_GROUPS["heldout"] == tuple(f"{f}-50x4" for f in gen.BASE_FAMILIES)
+    assert gen.SUITE_GROUPS["probe"] == tuple(f"{f}-probe" for f in gen.BASE_FAMILIES)
+    assert gen.SUITE_GROUPS["families-50"] == tuple(f"{f}-50" for f in gen.BASE_FAMILIES)
 
 
 # ----------------------------------------------------------------------------- determinism, jit, vmap
@@ -150,7 +201,7 @@ def test_same_key_same_room_and_keys_differ(batches):
     assert len({tuple(np.asarray(world.size)[i].round(5)) for i in range(ROOMS_PER_FAMILY)}) == ROOMS_PER_FAMILY
 
 
-@pytest.mark.parametrize("family", gen.FAMILIES)
+@pytest.mark.parametrize("family", gen.BASE_FAMILIES)
 def test_shapes_are_fixed_by_the_spec(batches, family):
     spec, world, _ = batches[family]
     M, C, S, G = gen.padded_shape(spec)
@@ -176,7 +227,7 @@ def test_padded_shapes_of_each_family():
 # ----------------------------------------------------------------------------- the spec's ranges
 
 
-@pytest.mark.parametrize("family", gen.FAMILIES)
+@pytest.mark.parametrize("family", gen.BASE_FAMILIES)
 def test_counts_and_sizes_lie_in_the_spec_ranges(batches, family):
     spec, world, info = batches[family]
     n = ROOMS_PER_FAMILY
@@ -260,7 +311,7 @@ def test_counts_and_sizes_lie_in_the_spec_ranges(batches, family):
 @pytest.mark.parametrize(
     "overrides, field",
     [
-        ({"family": "maze"}, "family"),
+        ({"family": "jungle"}, "family"),
         ({"width_min": 1.0}, "width_min"),
         ({"width_max": 3.5}, "width_max"),  # < width_min
         ({"height_max": 99.0}, "height_max"),
@@ -313,7 +364,7 @@ def test_every_field_documented_with_a_range():
 # ----------------------------------------------------------------------------- files
 
 
-@pytest.mark.parametrize("family", gen.FAMILIES)
+@pytest.mark.parametrize("family", gen.BASE_FAMILIES)
 @pytest.mark.parametrize("suffix", [".json", ".yaml"])
 def test_save_load_round_trip_gives_the_same_obstacles(batches, family, suffix, tmp_path):
     spec, world, _ = batches[family]
@@ -353,13 +404,13 @@ def test_generate_to_file_and_generated_worlds_stack_with_shipped_ones(tmp_path)
     with pytest.raises(WorldError, match="seed"):
         gen.generate_to_file("cylinders", -1, tmp_path / "x.json")
     with pytest.raises(WorldError, match="family"):
-        gen.generate_to_file("forest", 1, tmp_path / "x.json")
+        gen.generate_to_file("jungle", 1, tmp_path / "x.json")
 
 
 # ----------------------------------------------------------------------------- solvability
 
 
-@pytest.mark.parametrize("family", gen.FAMILIES)
+@pytest.mark.parametrize("family", gen.BASE_FAMILIES)
 def test_every_start_reaches_every_goal_by_an_independent_grid_search(batches, family):
     """Each of 512 rooms per family (2048 in all): a BFS over a 0.05 m grid whose free cells are
     more than D_c (exact float64 distances) from every obstacle finds a path from every start's
@@ -539,7 +590,7 @@ def test_cli_generate_writes_a_loadable_file(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, words",
     [
-        (["--family", "forest", "--seed", "1"], ["family", "forest", "cylinders"]),
+        (["--family", "jungle", "--seed", "1"], ["family", "jungle", "cylinders", "forest", "cave"]),
         (["--family", "walls", "--seed", "x"], ["seed"]),
         (["--family", "walls", "--seed", "1", "--set", "nope=3"], ["unknown", "nope"]),
         (["--family", "walls", "--seed", "1", "--set", "walls_max=lots"], ["walls_max", "integer"]),

@@ -259,7 +259,11 @@ def add_worlds(sub) -> None:
         help="draw one procedural room and write it as a world file",
         description="Draw one procedural room (see docs/generator.md) and write it as a world file.",
     )
-    g.add_argument("--family", required=True, help="cylinders, boxes, walls or mixture")
+    g.add_argument(
+        "--family",
+        required=True,
+        help="cylinders, boxes, walls, mixture, or a dense one: forest, warehouse, maze, cave (docs/generator.md)",
+    )
     g.add_argument(
         "--seed",
         required=True,

@@ -29,7 +29,8 @@ METHODS = tuple(_METHOD_TABLE)
 ROBUST_AGGREGATORS = ("method", "mean", "median", "trimmed_mean", "krum", "geometric_median", "norm_bounded")
 ATTACKS = ("none", "noise", "scale", "sign_flip", "zeros", "stale")
 ROOM_SOURCES = ("fixed", "procedural")
-ROOM_FAMILIES = ("cylinders", "boxes", "walls", "mixture", "fixed")  # fedjax_nav.worlds.FAMILIES + "fixed"
+# fedjax_nav.worlds.FAMILIES + "fixed" (tests/test_dense_families.py keeps them equal)
+ROOM_FAMILIES = ("cylinders", "boxes", "walls", "mixture", "forest", "warehouse", "maze", "cave", "fixed")
 # The `learner` choices and those that learn on-policy (no replay buffer to share), kept equal to
 # fedjax_nav.agents.learners.LEARNERS by tests/test_learner_trainer.py (config does not import jax).
 LEARNERS = ("ddpg", "td3", "sac", "ppo")
@@ -76,7 +77,8 @@ class EnvConfig:
     room_families: tuple = _f(
         ("mixture",),
         doc="procedural rooms' family, one for every robot or one per robot: "
-        "cylinders, boxes, walls, mixture, or fixed = keep that robot's env.worlds room (static)",
+        "cylinders, boxes, walls, mixture, the dense forest, warehouse, maze, cave (docs/generator.md), "
+        "or fixed = keep that robot's env.worlds room (static)",
     )
     room_every: int = _f(1, lo=1, hi=1_000_000, traced=True, doc="episodes between new procedural rooms")
     room_density_start: float = _f(

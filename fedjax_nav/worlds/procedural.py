@@ -9,7 +9,9 @@ per episode inside `lax.scan`::
 
 Families (`RoomSpec.family`): ``cylinders`` (circles only), ``boxes`` (rotated rectangles
 only), ``walls`` (rooms and corridors: interior walls with one doorway each) and ``mixture``
-(all three). The spec's ranges of the kinds a family does not use are ignored and take no
+(all three), built here; and the dense families ``forest``, ``warehouse``, ``maze`` and ``cave``,
+built in their own modules (`DENSE_BUILDERS`), each solvable by an argument of its own (their
+module docstrings). The spec's ranges of the kinds a family does not use are ignored and take no
 array space. Parameters, defaults and allowed ranges: `RoomSpec` and docs/generator.md.
 
 Solvability, by construction (no search, no resampling, no fallback needed)
@@ -65,7 +67,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from fedjax_nav.worlds import World
+from fedjax_nav.worlds import World, cave, forest, maze, warehouse
 from fedjax_nav.worlds.rooms import (
     _START_TRIES,
     RoomSpec,
@@ -174,7 +176,13 @@ def _thin(n: jax.Array, density) -> jax.Array:
     return jnp.clip(jnp.floor(jnp.asarray(density, jnp.float32) * n), 0, n).astype(jnp.int32)
 
 
+# The dense families build their rooms in their own modules (one each; shared parts in layout.py).
+DENSE_BUILDERS = {"forest": forest.build, "warehouse": warehouse.build, "maze": maze.build, "cave": cave.build}
+
+
 def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str, jax.Array]]:
+    if spec.family in DENSE_BUILDERS:
+        return DENSE_BUILDERS[spec.family](rng, spec, density)
     c = spec.clearance
     n_cyl_slots, n_box_slots, K = _counts(spec)
     S, G = spec.starts_max, spec.goals_max
@@ -326,13 +334,15 @@ def generate(key: jax.Array, spec: RoomSpec, density=1.0) -> World:
 
     `density` (a float in [0, 1], may be traced) keeps floor(density * n) of the n walls, boxes
     and cylinders the room would have, from the same draws (a curriculum's sparse rooms;
-    docs/generalization.md); the construction's guarantee holds at any density. At 1 (the
+    docs/generalization.md); the dense families thin their trunks, racks and pallets, maze walls
+    or rock islands the same way. The construction's guarantee holds at any density. At 1 (the
     default) the room is exactly the unthinned one.
 
     Every World of one spec has the shapes `padded_shape(spec)`: segments rows are the 4 outer
     walls, then 2 per interior wall slot, then 4 per box slot, then padding (zero rows); circles
-    one row per cylinder slot (zero rows unused). Every start reaches every goal with clearance
-    > D_c (see the module docstring for why). Raises WorldError for a bad spec (at trace time).
+    one row per cylinder slot (zero rows unused); the dense families' layouts: docs/generator.md.
+    Every start reaches every goal with clearance > D_c (see the module docstring for why).
+    Raises WorldError for a bad spec (at trace time).
     """
     return generate_with_info(key, spec, density)[0]
 

@@ -16,8 +16,21 @@ import numpy as np
 from fedjax_nav.worlds import CLEARANCE, WorldError
 from fedjax_nav.worlds.input_files import shorten, show
 
-FAMILIES = ("cylinders", "boxes", "walls", "mixture")
-# Which obstacle kinds each family draws.
+# The first four families draw cylinders, boxes and walls around a reserved network
+# (`procedural`); the dense ones build a structure (forest, warehouse, maze, cave) in their own
+# modules (fedjax_nav/worlds/forest.py, warehouse.py, maze.py, cave.py).
+BASE_FAMILIES = ("cylinders", "boxes", "walls", "mixture")
+DENSE_FAMILIES = ("forest", "warehouse", "maze", "cave")
+FAMILIES = BASE_FAMILIES + DENSE_FAMILIES
+# The fields a spec leaves None take the family's value (the room size: 4-12 m for the base families).
+_BY_FAMILY = {
+    "width_min": {"forest": 8.0, "warehouse": 10.0, "maze": 5.0, "cave": 5.0, None: 4.0},
+    "width_max": {"forest": 16.0, "warehouse": 18.0, "maze": 10.0, "cave": 9.0, None: 12.0},
+    "height_min": {"forest": 8.0, "warehouse": 10.0, "maze": 5.0, "cave": 5.0, None: 4.0},
+    "height_max": {"forest": 16.0, "warehouse": 18.0, "maze": 10.0, "cave": 9.0, None: 12.0},
+    "trail_points": {"cave": 2, None: 6},
+}
+# Which obstacle kinds each base family draws.
 _KINDS = {
     "cylinders": ("cylinders",),
     "boxes": ("boxes",),
@@ -37,9 +50,11 @@ class RoomSpec:
     ``[*_min, *_max]`` range (integers inclusive). `check_spec` enforces the allowed ranges
     (the ``range`` metadata of each field) and the rules between fields.
 
-    family: "cylinders", "boxes", "walls" or "mixture" (all three kinds); the ranges of the
-        kinds a family does not use are ignored.
-    width_*, height_*: the inner size of the room (walls at +-W/2, +-H/2).
+    family: one of `FAMILIES`: "cylinders", "boxes", "walls", "mixture" (all three kinds), or a
+        dense family "forest", "warehouse", "maze", "cave" (docs/generator.md); the fields of
+        the kinds a family does not use are ignored.
+    width_*, height_*: the inner size of the room (walls at +-W/2, +-H/2); None (the default)
+        is the family's default: 4-12 m, forest 8-16, warehouse 10-18, maze 5-10, cave 5-9.
     cylinders_*, radius_*: number of cylinders and their radius.
     boxes_*, box_side_*: number of boxes and their side lengths (each side drawn separately);
         the yaw is uniform in [0, pi).
@@ -51,16 +66,26 @@ class RoomSpec:
         every goal; if no candidate qualifies the farthest one is kept (best effort).
     clearance_margin: the reserved paths keep D_c + clearance_margin from every obstacle.
     tries: candidates drawn per obstacle or wall before it is dropped.
+    trees_*, trunk_radius_*, trail_points: forest: trunks on a jittered grid, kept off a trail
+        network of `trail_points` random waypoints (forest and cave).
+    aisle_width_*, rack_*, pallet*, warehouse_boxes: warehouse: rows of rack sections (depth x
+        length), aisles and cross-aisles of at least aisle_width_min > 2 (D_c + margin), a rack
+        section present with probability rack_fill, loose pallets (axis-aligned boxes), at most
+        warehouse_boxes boxes in all.
+    maze_cell_*, maze_loops: maze: a perfect grid maze (cells > 2 (D_c + margin), wall segments)
+        with a fraction maze_loops of its remaining inner walls removed.
+    cave_*: cave: a cellular automaton (initial fill, smoothing steps) on a grid of cave cells,
+        carved around the trail network; its outline as at most cave_segments segments.
     max_segments, max_circles, max_starts, max_goals: the padded array shapes; None = the
         least that fits the spec (`padded_shape`), a larger value pads further (e.g. to stack
         with other worlds).
     """
 
     family: str = "mixture"
-    width_min: float = _f(4.0, 3.0, 30.0, "room width, lower end (m)")
-    width_max: float = _f(12.0, 3.0, 30.0, "room width, upper end (m)")
-    height_min: float = _f(4.0, 3.0, 30.0, "room height, lower end (m)")
-    height_max: float = _f(12.0, 3.0, 30.0, "room height, upper end (m)")
+    width_min: float | None = _f(None, 3.0, 30.0, "room width, lower end (m; None: the family's)")
+    width_max: float | None = _f(None, 3.0, 30.0, "room width, upper end (m; None: the family's)")
+    height_min: float | None = _f(None, 3.0, 30.0, "room height, lower end (m; None: the family's)")
+    height_max: float | None = _f(None, 3.0, 30.0, "room height, upper end (m; None: the family's)")
     cylinders_min: int = _f(2, 0, 32, "number of cylinders, lower end")
     cylinders_max: int = _f(8, 0, 32, "number of cylinders, upper end")
     radius_min: float = _f(0.15, 0.05, 2.0, "cylinder radius, lower end (m)")
@@ -81,10 +106,41 @@ class RoomSpec:
     min_start_goal_distance: float = _f(2.0, 0.0, 20.0, "least start-goal distance (m)")
     clearance_margin: float = _f(0.05, 0.01, 1.0, "extra clearance of the reserved paths over D_c (m)")
     tries: int = _f(16, 1, 256, "candidates per obstacle or wall")
+    trees_min: int = _f(40, 0, 400, "forest: number of trunks, lower end")
+    trees_max: int = _f(150, 0, 400, "forest: number of trunks, upper end")
+    trunk_radius_min: float = _f(0.1, 0.03, 1.0, "forest: trunk radius, lower end (m)")
+    trunk_radius_max: float = _f(0.3, 0.03, 1.0, "forest: trunk radius, upper end (m)")
+    trail_points: int | None = _f(None, 1, 32, "forest, cave: trail network waypoints (None: 6, cave 2)")
+    aisle_width_min: float = _f(0.9, 0.1, 5.0, "warehouse: aisle width, lower end (m)")
+    aisle_width_max: float = _f(1.8, 0.1, 5.0, "warehouse: aisle width, upper end (m)")
+    rack_depth_min: float = _f(0.6, 0.2, 4.0, "warehouse: rack depth, lower end (m)")
+    rack_depth_max: float = _f(1.2, 0.2, 4.0, "warehouse: rack depth, upper end (m)")
+    rack_length_min: float = _f(2.0, 0.5, 20.0, "warehouse: rack section length, lower end (m)")
+    rack_length_max: float = _f(6.0, 0.5, 20.0, "warehouse: rack section length, upper end (m)")
+    rack_fill: float = _f(0.9, 0.0, 1.0, "warehouse: probability that a rack section is there")
+    pallets_min: int = _f(2, 0, 32, "warehouse: number of loose pallets, lower end")
+    pallets_max: int = _f(12, 0, 32, "warehouse: number of loose pallets, upper end")
+    pallet_side_min: float = _f(0.4, 0.1, 2.0, "warehouse: pallet side, lower end (m)")
+    pallet_side_max: float = _f(0.9, 0.1, 2.0, "warehouse: pallet side, upper end (m)")
+    warehouse_boxes: int = _f(40, 1, 1024, "warehouse: box slots, racks first (a room with more loses the last)")
+    maze_cell_min: float = _f(0.8, 0.2, 5.0, "maze: cell side (= passage width), lower end (m)")
+    maze_cell_max: float = _f(1.4, 0.2, 5.0, "maze: cell side (= passage width), upper end (m)")
+    maze_loops: float = _f(0.1, 0.0, 1.0, "maze: fraction of the perfect maze's inner walls removed")
+    cave_cell_min: float = _f(0.35, 0.1, 2.0, "cave: grid cell side, lower end (m)")
+    cave_cell_max: float = _f(0.5, 0.1, 2.0, "cave: grid cell side, upper end (m)")
+    cave_fill_min: float = _f(0.45, 0.0, 1.0, "cave: initial occupied fraction, lower end")
+    cave_fill_max: float = _f(0.55, 0.0, 1.0, "cave: initial occupied fraction, upper end")
+    cave_smoothing: int = _f(1, 0, 8, "cave: cellular-automaton smoothing steps")
+    cave_segments: int = _f(192, 8, 2048, "cave: segment rows of the outline (longer outlines are cut)")
     max_segments: int | None = _f(None, 4, 4096, "padded segment rows (None: least that fits)")
     max_circles: int | None = _f(None, 1, 4096, "padded circle rows (None: least that fits)")
     max_starts: int | None = _f(None, 1, 256, "padded start rows (None: starts_max)")
     max_goals: int | None = _f(None, 1, 256, "padded goal rows (None: goals_max)")
+
+    def __post_init__(self):
+        for name, by in _BY_FAMILY.items():  # None: the family's value
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, by.get(self.family, by[None]))
 
     def uses(self, kind: str) -> bool:
         """Whether this spec's family draws `kind` ("cylinders", "boxes" or "walls")."""
@@ -119,10 +175,48 @@ def _counts(spec: RoomSpec) -> tuple[int, int, int]:
     )
 
 
+def grid_cells(side_max: float, cell_min: float) -> int:
+    """The most grid cells along a side: a room of side <= side_max cut into cells >= cell_min."""
+    return max(1, int(side_max // cell_min))
+
+
+def maze_grid(spec: RoomSpec) -> tuple[int, int]:
+    """The maze's static grid (columns, rows): the most cells any of its rooms has."""
+    return grid_cells(spec.width_max, spec.maze_cell_min), grid_cells(spec.height_max, spec.maze_cell_min)
+
+
+def cave_grid(spec: RoomSpec) -> tuple[int, int]:
+    """The cave's static grid (columns, rows)."""
+    return grid_cells(spec.width_max, spec.cave_cell_min), grid_cells(spec.height_max, spec.cave_cell_min)
+
+
+def maze_wall_rows(spec: RoomSpec) -> int:
+    """Segment rows of a maze's inner walls: on each inner grid line, walls merged into runs, at
+    most ceil(n / 2) runs of n cell sides (two runs are apart by at least one open side)."""
+    nx, ny = maze_grid(spec)
+    return (ny - 1) * (-(-nx // 2)) + (nx - 1) * (-(-ny // 2))
+
+
+def warehouse_slots(spec: RoomSpec) -> tuple[int, int]:
+    """(rack rows, sections per row): the most that fit the longest room side with the narrowest
+    aisles and the smallest racks (the layout may be turned by 90 degrees)."""
+    side, a = max(spec.width_max, spec.height_max), spec.aisle_width_min
+    return max(0, int((side - a) // (spec.rack_depth_min + a))), max(0, int((side - a) // (spec.rack_length_min + a)))
+
+
 def needed_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
     """The least (segments, circles, starts, goals) rows that fit every room of the spec."""
+    S, G = spec.starts_max, spec.goals_max
+    if spec.family == "forest":
+        return 4, max(1, spec.trees_max), S, G
+    if spec.family == "warehouse":
+        return 4 + 4 * spec.warehouse_boxes, 1, S, G
+    if spec.family == "maze":
+        return 4 + maze_wall_rows(spec), 1, S, G
+    if spec.family == "cave":
+        return 4 + spec.cave_segments, 1, S, G
     n_cyl, n_box, n_wall = _counts(spec)
-    return 4 + 2 * n_wall + 4 * n_box, max(1, n_cyl), spec.starts_max, spec.goals_max
+    return 4 + 2 * n_wall + 4 * n_box, max(1, n_cyl), S, G
 
 
 def padded_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
@@ -164,6 +258,16 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
         "door_width",
         "starts",
         "goals",
+        "trees",
+        "trunk_radius",
+        "aisle_width",
+        "rack_depth",
+        "rack_length",
+        "pallets",
+        "pallet_side",
+        "maze_cell",
+        "cave_cell",
+        "cave_fill",
     ):
         lo_v, hi_v = getattr(spec, f"{base}_min"), getattr(spec, f"{base}_max")
         if hi_v < lo_v:
@@ -188,6 +292,7 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
                 f"[door_width_max + 2 (D_c + clearance_margin), max(width_min, height_min) / 2] = "
                 f"[{lo_room:g}, {hi_room:g}] for this spec"
             )
+    _check_dense(spec, c, ranges)
     need = needed_shape(spec)
     for name, n in zip(("max_segments", "max_circles", "max_starts", "max_goals"), need):
         v = getattr(spec, name)
@@ -197,6 +302,29 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
                 f"{ranges[name][2]}] for this spec (None: {n})"
             )
     return spec
+
+
+def _check_dense(spec: RoomSpec, c: float, ranges) -> None:
+    """The rules between fields of the dense families (the passages the robot must fit through)."""
+    if spec.family == "warehouse" and not spec.aisle_width_min > 2 * c:
+        raise WorldError(
+            f"RoomSpec field 'aisle_width_min' = {spec.aisle_width_min!r} must be > 2 (D_c + clearance_margin) = "
+            f"{2 * c:g} m so the robot fits through an aisle (allowed range ({2 * c:g}, "
+            f"{ranges['aisle_width_min'][2]}])"
+        )
+    if spec.family == "maze":
+        if not spec.maze_cell_min > 2 * c:
+            raise WorldError(
+                f"RoomSpec field 'maze_cell_min' = {spec.maze_cell_min!r} must be > 2 (D_c + clearance_margin) = "
+                f"{2 * c:g} m so the robot fits through a passage (allowed range ({2 * c:g}, "
+                f"{ranges['maze_cell_min'][2]}])"
+            )
+        hi = min(spec.width_min, spec.height_min)
+        if spec.maze_cell_max > hi:
+            raise WorldError(
+                f"RoomSpec field 'maze_cell_max' = {spec.maze_cell_max!r} is outside the allowed range "
+                f"[maze_cell_min, min(width_min, height_min)] = [{spec.maze_cell_min:g}, {hi:g}] for this spec"
+            )
 
 
 def make_spec(family: str = "mixture", **overrides) -> RoomSpec:

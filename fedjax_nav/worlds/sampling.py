@@ -109,3 +109,70 @@ def box_corners(centre, sides, yaw):
     local = jnp.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * 0.5  # [4, 2]
     lx, ly = local[:, 0] * sides[..., :1], local[:, 1] * sides[..., 1:]  # [..., 4]
     return jnp.stack([centre[..., :1] + cs * lx - sn * ly, centre[..., 1:] + sn * lx + cs * ly], -1)
+
+
+# The dense families' distance tests. Written per coordinate (no reductions over a trailing axis
+# of 2) and, in the `*_all` forms, as a static loop over the network's segments: each segment is
+# one fused elementwise pass over the candidates, about 20x cheaper on CPU than the broadcast
+# [candidates, segments, 2] arrays of `pt_seg` (measured on 4096 forest rooms).
+
+
+def pt_seg_sq(p, a, b):
+    """Squared distance from points p to segments a-b (all [..., 2], broadcast)."""
+    px, py, ax, ay = p[..., 0], p[..., 1], a[..., 0], a[..., 1]
+    ex, ey = b[..., 0] - ax, b[..., 1] - ay
+    den = ex * ex + ey * ey
+    t = jnp.clip(((px - ax) * ex + (py - ay) * ey) / jnp.where(den > 0, den, 1.0), 0.0, 1.0)
+    qx, qy = px - ax - t * ex, py - ay - t * ey
+    return qx * qx + qy * qy
+
+
+def seg_aabb_sq(a, b, centre, half):
+    """Squared exact distance between segments a-b and solid axis-aligned boxes (centre, half
+    sides), 0 if the segment touches or enters the box: `seg_box` at yaw 0 without rotations or
+    square roots (shapes broadcast, [..., 2])."""
+    x0, y0 = a[..., 0] - centre[..., 0], a[..., 1] - centre[..., 1]
+    x1, y1 = b[..., 0] - centre[..., 0], b[..., 1] - centre[..., 1]
+    hx, hy = half[..., 0], half[..., 1]
+
+    def slab(p0, d, h):  # Liang-Barsky along one axis: (t_in, t_out, parallel and outside)
+        tiny = jnp.abs(d) < 1e-12
+        safe = jnp.where(tiny, 1.0, d)
+        ta, tb = (-h - p0) / safe, (h - p0) / safe
+        return (
+            jnp.where(tiny, -jnp.inf, jnp.minimum(ta, tb)),
+            jnp.where(tiny, jnp.inf, jnp.maximum(ta, tb)),
+            tiny & (jnp.abs(p0) > h),
+        )
+
+    ix, ox, px = slab(x0, x1 - x0, hx)
+    iy, oy, py = slab(y0, y1 - y0, hy)
+    clips = (jnp.maximum(jnp.maximum(ix, iy), 0.0) <= jnp.minimum(jnp.minimum(ox, oy), 1.0)) & ~px & ~py
+
+    def to_box(x, y):
+        qx, qy = jnp.maximum(jnp.abs(x) - hx, 0.0), jnp.maximum(jnp.abs(y) - hy, 0.0)
+        return qx * qx + qy * qy
+
+    seg0, seg1 = jnp.stack([x0, y0], -1), jnp.stack([x1, y1], -1)
+    d = jnp.minimum(to_box(x0, y0), to_box(x1, y1))
+    for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+        d = jnp.minimum(d, pt_seg_sq(jnp.stack([sx * hx, sy * hy], -1), seg0, seg1))
+    return jnp.where(clips, 0.0, d)
+
+
+def aabb_gap_sq(lo1, hi1, lo2, hi2):
+    """Squared distance between axis-aligned boxes [lo, hi] (a segment along an axis is one of zero
+    width); 0 if they touch or overlap. Shapes broadcast, [..., 2]."""
+    gx = jnp.maximum(jnp.maximum(lo2[..., 0] - hi1[..., 0], lo1[..., 0] - hi2[..., 0]), 0.0)
+    gy = jnp.maximum(jnp.maximum(lo2[..., 1] - hi1[..., 1], lo1[..., 1] - hi2[..., 1]), 0.0)
+    return gx * gx + gy * gy
+
+
+def all_clear(dist_sq, a, b, on, r2):
+    """Whether candidates keep a squared distance >= r2 from every used segment a-b [R, 2]
+    (on bool[R]): `dist_sq(a_r, b_r)` gives one segment's squared distances to every candidate."""
+    ok = None
+    for r in range(a.shape[0]):
+        ok_r = ~on[r] | (dist_sq(a[r], b[r]) >= r2)
+        ok = ok_r if ok is None else ok & ok_r
+    return ok

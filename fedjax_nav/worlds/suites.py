@@ -20,7 +20,7 @@ import numpy as np
 
 from fedjax_nav.worlds import World, WorldError, from_dict, wall_segments
 from fedjax_nav.worlds.procedural import generate_batch, jitted_generator
-from fedjax_nav.worlds.rooms import FAMILIES, RoomSpec, make_spec, parse_overrides
+from fedjax_nav.worlds.rooms import BASE_FAMILIES, DENSE_FAMILIES, FAMILIES, RoomSpec, make_spec, parse_overrides
 
 ROOM_ROOT = 0x5EED  # root of every room key
 TEST_SEED_BASE = 2**31  # room seeds >= this are reserved for the held-out test suites
@@ -62,21 +62,40 @@ class Suite:
         return (TEST_SEED_BASE + self.index * SUITE_STRIDE + np.arange(self.rooms)).astype(np.uint32)
 
 
-SUITES: dict[str, Suite] = {f"{fam}-50": Suite(fam, 50, i) for i, fam in enumerate(FAMILIES)}
+SUITES: dict[str, Suite] = {f"{fam}-50": Suite(fam, 50, i) for i, fam in enumerate(BASE_FAMILIES)}
 # The generalisation test suites (docs/generalization.md): 50 rooms per family with 4 goals each,
 # and the small probe of periodic evaluation during training (4 rooms per family, 2 goals).
 # Each suite owns its own block of test seeds, so the probe never sees a test room.
 SUITES.update(
-    {f"{fam}-50x4": Suite(fam, 50, 4 + i, (("goals_min", 4), ("goals_max", 4))) for i, fam in enumerate(FAMILIES)}
+    {f"{fam}-50x4": Suite(fam, 50, 4 + i, (("goals_min", 4), ("goals_max", 4))) for i, fam in enumerate(BASE_FAMILIES)}
 )
 SUITES.update(
-    {f"{fam}-probe": Suite(fam, 4, 8 + i, (("goals_min", 2), ("goals_max", 2))) for i, fam in enumerate(FAMILIES)}
+    {f"{fam}-probe": Suite(fam, 4, 8 + i, (("goals_min", 2), ("goals_max", 2))) for i, fam in enumerate(BASE_FAMILIES)}
+)
+# The same three suites for each dense family, in blocks 12 and up (the base families' blocks, and
+# so their rooms, are those they always had).
+_D = len(DENSE_FAMILIES)
+SUITES.update({f"{fam}-50": Suite(fam, 50, 12 + i) for i, fam in enumerate(DENSE_FAMILIES)})
+SUITES.update(
+    {
+        f"{fam}-50x4": Suite(fam, 50, 12 + _D + i, (("goals_min", 4), ("goals_max", 4)))
+        for i, fam in enumerate(DENSE_FAMILIES)
+    }
+)
+SUITES.update(
+    {
+        f"{fam}-probe": Suite(fam, 4, 12 + 2 * _D + i, (("goals_min", 2), ("goals_max", 2)))
+        for i, fam in enumerate(DENSE_FAMILIES)
+    }
 )
 # Named groups of suites (one family each): `suite_rooms` accepts a suite or a group name.
 SUITE_GROUPS: dict[str, tuple[str, ...]] = {
-    "heldout": tuple(f"{fam}-50x4" for fam in FAMILIES),
-    "families-50": tuple(f"{fam}-50" for fam in FAMILIES),
-    "probe": tuple(f"{fam}-probe" for fam in FAMILIES),
+    "heldout": tuple(f"{fam}-50x4" for fam in BASE_FAMILIES),
+    "families-50": tuple(f"{fam}-50" for fam in BASE_FAMILIES),
+    "probe": tuple(f"{fam}-probe" for fam in BASE_FAMILIES),
+    "dense-heldout": tuple(f"{fam}-50x4" for fam in DENSE_FAMILIES),
+    "dense-50": tuple(f"{fam}-50" for fam in DENSE_FAMILIES),
+    "dense-probe": tuple(f"{fam}-probe" for fam in DENSE_FAMILIES),
 }
 
 

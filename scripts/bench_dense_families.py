@@ -1,0 +1,113 @@
+"""The env step's cost in the procedural families, dense against sparse, at a training-like batch.
+
+    python scripts/bench_dense_families.py [--families mixture,forest,warehouse,maze,cave]
+        [--robots 5 --envs 64 --steps 200 --repeats 9] [--record docs/dense_rooms.md]
+
+--robots x --envs environments, each in its own room of the family's default spec
+(`generate_batch` over `train_room_key(0 .. n-1)`, padded to the family's `padded_shape`, the
+per-pose layout of a training run): random actions through `NavEnv.step` (move, 24-beam cast,
+clearance, reward, reset on a collision) in one jitted `lax.scan` of --steps steps, vmapped over
+the environments, as `fedjax-nav bench env` does; and the geometry alone (one cast + one
+`nearest_distance` per environment, scripts/bench_dense.py's "step"). Families are timed in one
+process, alternated, median of --repeats (wall and CPU time: the machine may be shared); ratios
+are against the first family listed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+from bench_dense import MAX_RANGE, NUM_BEAMS, compile_seconds, machine, rows_of, step_geometry, throughput  # noqa: E402
+
+from fedjax_nav.env import NavEnv, make_params  # noqa: E402
+from fedjax_nav.worlds import procedural, rooms, suites  # noqa: E402
+
+
+def family_cases(family: str, n: int, steps: int):
+    """((env rollout, args), (geometry, args), rows) over n rooms of `family`."""
+    spec = rooms.make_spec(family)
+    world = procedural.generate_batch(jax.vmap(suites.train_room_key)(jnp.arange(n)), spec)
+    env, params = NavEnv(num_beams=NUM_BEAMS, max_range=MAX_RANGE), make_params(world)
+
+    def rollout(key, params):
+        k0, k1 = jax.random.split(key)
+        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
+        _, state = env.reset(k0, params)
+
+        def body(carry, xs):
+            state, acc = carry
+            obs, state, r, *_ = env.step(xs[0], state, xs[1], params)
+            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
+
+        return jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))[0][1]
+
+    keys = jax.random.split(jax.random.key(0), n)
+    poses = jnp.concatenate([world.starts[:, 0, :2], jnp.zeros((n, 1))], -1)
+    geo = jax.jit(jax.vmap(step_geometry))
+    env_case = (jax.jit(jax.vmap(rollout)), (keys, params))
+    return env_case, (geo, (world.segments, poses, world.circles)), rows_of(world)
+
+
+def bench(families, robots: int, envs: int, steps: int, repeats: int) -> list[str]:
+    n = robots * envs
+    cases, rows, comp = {}, {}, {}
+    for fam in families:
+        env_case, geo_case, rows[fam] = family_cases(fam, n, steps)
+        comp[fam] = compile_seconds(*env_case)
+        cases[(fam, "env")], cases[(fam, "geometry")] = env_case, geo_case
+    t, cpu = throughput(cases, repeats)
+    ref = families[0]
+    lines = [
+        f"{robots} robots x {envs} environments = {n} rooms (one each), {steps} random-action env steps per call; "
+        f"geometry: one cast + clearance per room; median of {repeats} alternated repeats.",
+        "",
+        f"| family | rows (M + C) | env compile s | env agent-steps/s | vs {ref} | per CPU-s | vs {ref} "
+        f"| geometry steps/s | vs {ref} |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for fam in families:
+        (m, c), e, g = rows[fam], (fam, "env"), (fam, "geometry")
+        lines.append(
+            f"| {fam} | {m + c} ({m} + {c}) | {comp[fam]:.2f} | {n * steps / t[e]:,.0f} "
+            f"| {t[(ref, 'env')] / t[e]:.2f}x | {n * steps / cpu[e]:,.0f} | {cpu[(ref, 'env')] / cpu[e]:.2f}x "
+            f"| {n / t[g]:,.0f} | {t[(ref, 'geometry')] / t[g]:.2f}x |"
+        )
+        print(lines[-1], flush=True)
+    return lines
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--families", default="mixture,forest,warehouse,maze,cave")
+    ap.add_argument("--robots", type=int, default=5)
+    ap.add_argument("--envs", type=int, default=64, help="environments per robot")
+    ap.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--record", metavar="FILE", help="append the table to FILE (markdown)")
+    a = ap.parse_args(argv)
+    families = a.families.split(",")
+    bad = [f for f in families if f not in rooms.FAMILIES]
+    if bad:
+        ap.error(f"--families: {bad[0]!r} is not a family ({', '.join(rooms.FAMILIES)})")
+    cmd = " ".join(argv if argv is not None else sys.argv[1:])
+    out = [f"Command: `python scripts/bench_dense_families.py {cmd}`".rstrip(), "", f"Machine: {machine()}", ""]
+    out += bench(families, a.robots, a.envs, a.steps, a.repeats)
+    out.append(f"\nLoad average after: {os.getloadavg()[0]:.2f}")
+    text = "\n".join(out)
+    print(text)
+    if a.record:
+        with open(a.record, "a") as fh:
+            fh.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `scripts/bench_dense_families.py`\n\n{text}\n")
+
+
+if __name__ == "__main__":
+    main()
