@@ -229,7 +229,7 @@ def test_step_counters_fit_int32(cfg_file, tmp_path, capfd):
     cli_error(
         capfd,
         ["train", "--config", cfg_file, "--out", tmp_path / "run", "--quiet", *sets],
-        "run.episodes x env.episode_length x robots = 2,200,000,000",
+        "run.episodes x env.episode_length x robots x env.envs_per_robot = 2,200,000,000",
         "at most 2^31 - 1",
     )
 

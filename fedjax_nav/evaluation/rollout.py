@@ -20,6 +20,9 @@ the goal gives 1 (up to the overshoot of the last step, at most `v_max * dt`). T
 start-goal distance is recorded beside it (`start_goal_distance`).
 
     evaluate_policy(policy, world, params, ...) -> EvalResult   any policy function
+
+Memory: `evaluate_policy` refuses an evaluation whose trajectories and episode states would not
+fit (`limits.check_eval_memory`) before anything is allocated or compiled.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from flax import struct
 from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.env.nav import EnvState, NavEnv, make_params
+from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.worlds import World
 
 # Defaults of the evaluation noise (std of Gaussian noise): ranges in m, actions in the network's
@@ -47,10 +51,6 @@ RANGE_NOISE = 0.01
 ACTION_NOISE = 0.01
 ATTEMPTS = 4
 CHUNK = 64  # steps per inner scan; the outer while_loop exits once every episode is over
-
-
-class EvalError(ValueError):
-    """An evaluation input (run directory, params file, setting) is invalid; the message says which."""
 
 
 @struct.dataclass
@@ -126,17 +126,20 @@ def eval_program(env_settings: dict, policy: Callable, chunk: int):
     return _cached_program(tuple(sorted(env_settings.items())), policy, int(chunk))
 
 
+def _init_one(env: NavEnv, key, g, env_params) -> _Episode:
+    """One episode's first state: reset at start 0 towards goal row `g`."""
+    k_reset, k_run = jax.random.split(key)
+    obs, state = env.reset(k_reset, env_params.replace(goal_index=g))
+    f, i = jnp.bool_(False), jnp.int32(0)
+    return _Episode(state, obs, k_run, f, f, f, f, i, jnp.float32(0.0))
+
+
 @functools.lru_cache(maxsize=16)
 def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
     env = NavEnv(**dict(env_settings))
     T = env.episode_length
     n_chunks = -(-T // chunk)
-
-    def init_one(key, g, env_params):
-        k_reset, k_run = jax.random.split(key)
-        obs, state = env.reset(k_reset, env_params.replace(goal_index=g))
-        f, i = jnp.bool_(False), jnp.int32(0)
-        return _Episode(state, obs, k_run, f, f, f, f, i, jnp.float32(0.0))
+    init_one = functools.partial(_init_one, env)
 
     def step_one(params, ep: _Episode, env_params):
         key, k_step = jax.random.split(ep.key)
@@ -204,6 +207,14 @@ def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
     return jax.jit(run)
 
 
+def episode_state(env_settings: dict, env_params):
+    """The shapes of one episode's running state (`jax.eval_shape`: nothing is allocated) under
+    `env_settings` with one room's `env_params` (arrays or ShapeDtypeStructs), for
+    `limits.check_eval_memory`."""
+    init = functools.partial(_init_one, NavEnv(**env_settings))
+    return jax.eval_shape(init, jax.random.key(0), jnp.int32(0), env_params)
+
+
 @functools.lru_cache(maxsize=32)
 def _wrap_obs_only(policy: Callable) -> Callable:
     def wrapped(_params, obs):
@@ -230,6 +241,7 @@ def evaluate_policy(
     chunk: int = CHUNK,
     robot: dict | None = None,
     env_settings: dict | None = None,
+    memory_budget: int | None = None,
     **env_overrides,
 ) -> EvalResult:
     """Run the protocol for any policy: every agent x goal x attempt, one jitted program.
@@ -249,13 +261,12 @@ def evaluate_policy(
     env_settings: NavEnv's keyword arguments as a run builds them (`config.envs.env_settings`);
         when given they replace num_beams, max_range, collision_test and robot (and max_steps is
         its episode_length).
+    memory_budget: bytes the evaluation may take (default: the memory available now); one whose
+        estimate (`limits.eval_memory`) exceeds it is refused (EvalError) before anything is allocated.
     """
     if not isinstance(world, World):
         world = _worlds.load(world)
-    if attempts < 1:
-        raise EvalError(f"attempts must be >= 1, got {attempts}")
-    if max_steps < 1:
-        raise EvalError(f"max_steps must be >= 1, got {max_steps}")
+    check_counts(attempts, max_steps)
     if not (0 <= range_noise < float("inf") and 0 <= action_noise < float("inf")):  # NaN fails too
         raise EvalError(
             f"noise stds must be finite and >= 0, got range_noise={range_noise}, action_noise={action_noise}"
@@ -289,6 +300,7 @@ def evaluate_policy(
     settings = {**env_settings, "episode_length": int(max_steps), "mode": "eval", "noise": True}
     env_params = make_params(world, range_noise=range_noise, action_noise=action_noise, **env_overrides)
     G, K = len(goal_rows), int(attempts)
+    check_eval_memory(settings, episode_state(settings, env_params), (A, G, K), chunk, budget=memory_budget)
     keys = jax.random.split(jax.random.key(seed), A * G * K).reshape(A, G * K)
     t0 = time.time()
     program = eval_program(settings, fn, min(int(chunk), int(max_steps)))

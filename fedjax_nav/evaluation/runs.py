@@ -25,15 +25,19 @@ import numpy as np
 from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.config import envs
+from fedjax_nav.env.nav import make_params
 from fedjax_nav.evaluation import report
+from fedjax_nav.evaluation.limits import check_counts, check_eval_memory
 from fedjax_nav.evaluation.metrics import STRAIGHT_LINE_NOTE, episodes_frame, summarize
 from fedjax_nav.evaluation.rollout import (
     ACTION_NOISE,
     ATTEMPTS,
+    CHUNK,
     RANGE_NOISE,
     EvalError,
     RunAgents,
     RunEvaluation,
+    episode_state,
     evaluate_policy,
 )
 
@@ -101,6 +105,10 @@ def load_run(run_dir: str | Path) -> RunAgents:
         if got[:2] != lead:
             raise EvalError(f"{params_file}: inconsistent leading axes {list(got[:2])} vs {list(lead)}")
     S = int(lead[0])
+    if S == 0:
+        raise EvalError(
+            f"{params_file}: the actor arrays have no seeds (shape [0, {n_nets}, ...]); nothing to evaluate"
+        )
     bad = sorted(
         {
             (int(s), int(k))
@@ -120,6 +128,22 @@ def load_run(run_dir: str | Path) -> RunAgents:
     return RunAgents(run_dir, cfg, actor, seeds, nets_idx, n_nets, n_robots)
 
 
+def check_run_memory(run: RunAgents, world, attempts: int, max_steps: int | None, robot=None, budget=None) -> dict:
+    """The memory check of `evaluate_run(run, world, attempts, max_steps=max_steps, robot=robot)`
+    (`limits.check_eval_memory`: one line naming --attempts and --max-steps, EvalError), from
+    shapes; `world` a World or a name / file. Returns the estimate."""
+    w = world if isinstance(world, _worlds.World) else _worlds.load(world)
+    cfg = run.cfg
+    under = dataclasses.replace(cfg, robot=cfg.robot if robot is None else robot)
+    T = int(max_steps or cfg.env.episode_length)
+    settings = envs.env_settings(under, "eval", noise=True, episode_length=T)
+    params = make_params(w, **envs.eval_values(under, RANGE_NOISE, ACTION_NOISE))
+    shape = (run.num_agents, int(w.num_goals), int(attempts) * run.num_robots // run.n_nets)
+    return check_eval_memory(
+        settings, episode_state(settings, params), shape, CHUNK, int(attempts), budget, str(run.run_dir)
+    )
+
+
 def evaluate_run(
     run_dir: str | Path | RunAgents,
     world: str | Path = "eval",
@@ -129,6 +153,7 @@ def evaluate_run(
     seed: int = 0,
     max_steps: int | None = None,
     robot=None,
+    memory_budget: int | None = None,
 ) -> RunEvaluation:
     """The protocol on a run: its agents, the run's env settings (dt, speeds, radii, beams,
     collision test, T = env.episode_length unless `max_steps`), on `world` and its goals.
@@ -139,7 +164,10 @@ def evaluate_run(
     robot: a `RobotConfig` to evaluate under (default: the run's own `robot` section). With a
     model other than the ideal one, its `range_noise` replaces `range_noise`, and an evaluation
     under a model other than the run's is kept in RUN/eval/<world>-robot-<model>/.
+    memory_budget: bytes the evaluation may take (default: the memory available now); beyond it,
+    an EvalError naming --attempts and --max-steps, before anything is allocated (`check_run_memory`).
     """
+    check_counts(attempts, max_steps)
     run = run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir)
     cfg = run.cfg
     robot = cfg.robot if robot is None else robot
@@ -150,6 +178,7 @@ def evaluate_run(
     k_eff = int(attempts) * run.num_robots // run.n_nets
     e, d = cfg.env, cfg.ddpg
     T = int(max_steps or e.episode_length)
+    check_run_memory(run, w, attempts, max_steps, robot, memory_budget)
     result = evaluate_policy(
         actor_policy(d.hidden, d.depth, d.activation),
         w,
@@ -160,6 +189,7 @@ def evaluate_run(
         action_noise=action_noise,
         seed=seed,
         env_settings=envs.env_settings(under, "eval", noise=True, episode_length=T),
+        memory_budget=memory_budget,
         **values,
     )
     frame = episodes_frame(result, run.agent_seed, run.agent_net, run.agent_byzantine)
@@ -222,6 +252,7 @@ def evaluate_runs(
     figures: bool = True,
     echo: Callable[[str], None] = print,
     robot=None,
+    memory_budget: int | None = None,
 ) -> dict[str, Any]:
     """What `fedjax-nav evaluate` does: evaluate each run and print its table.
 
@@ -231,14 +262,18 @@ def evaluate_runs(
     A folder that already holds an evaluation (or a comparison) is replaced, with one line saying
     so. Returns {label: summary, "_paths": [...]}.
 
-    Every run is loaded and checked before any evaluation starts (a bad path fails early).
+    Every run is loaded and checked before any evaluation starts (a bad path fails early, and so
+    does an evaluation beyond `memory_budget`: bytes, default the memory available now).
     robot: a `RobotConfig` to evaluate every run under (default: each run's own; see evaluate_run).
     """
+    check_counts(attempts, max_steps)
     for flag, std in (("--range-noise", range_noise), ("--action-noise", action_noise)):
         if not 0 <= std < float("inf"):  # NaN fails too
             raise EvalError(f"{flag}: the noise std must be finite and >= 0, got {std}")
     runs = [load_run(d) for d in run_dirs]
-    _worlds.load_with_meta(world)  # a bad world (WorldError) fails before any compilation
+    w, _ = _worlds.load_with_meta(world)  # a bad world (WorldError) fails before any compilation
+    for run in runs:
+        check_run_memory(run, w, attempts, max_steps, robot, memory_budget)
     echo(
         f"evaluating on '{world}': noise std range {range_noise:g} m, action {action_noise:g} "
         f"(action units); {attempts} attempts per agent and goal (x num_robots for a shared network)"
@@ -247,7 +282,7 @@ def evaluate_runs(
     summaries: dict[str, dict] = {}
     written: list[Path] = []
     for run in runs:
-        ev = evaluate_run(run, world, attempts, range_noise, action_noise, seed, max_steps, robot)
+        ev = evaluate_run(run, world, attempts, range_noise, action_noise, seed, max_steps, robot, memory_budget)
         if ev.summary["robot"]["model"] != "ideal":
             echo(
                 f"robot model {ev.summary['robot']['model']}: lidar noise std {ev.summary['noise']['range_noise']:g} m"

@@ -30,7 +30,8 @@ import pandas as pd
 from fedjax_nav import rundir
 from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
-from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, EvalError, eval_program
+from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
+from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
 from fedjax_nav.evaluation.runs import actor_policy, load_run
 from fedjax_nav.worlds import WorldError
 from fedjax_nav.worlds.suites import suite_names, suite_rooms
@@ -70,8 +71,12 @@ def evaluate_suite(
     action_noise: float = ACTION_NOISE,
     seed: int = 0,
     max_steps: int | None = None,
+    memory_budget: int | None = None,
 ) -> dict:
-    """The protocol of a run on every room of `suite`; returns {"summary", "families", "episodes"}."""
+    """The protocol of a run on every room of `suite`; returns {"summary", "families", "episodes"}.
+    An evaluation whose estimate (`limits.eval_memory`: rooms x agents x goals x attempts) exceeds
+    `memory_budget` bytes (default: the memory available now) is refused before it is allocated."""
+    check_counts(attempts, max_steps)
     try:
         suite_names(suite)
     except WorldError as e:
@@ -86,6 +91,9 @@ def evaluate_suite(
     range_noise = values["range_noise"]
     params = make_params(world, **values)
     settings = envs.env_settings(cfg, "eval", noise=True, episode_length=T)
+    room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), params)  # one room's shapes
+    state = episode_state(settings, room)
+    check_eval_memory(settings, state, (R, A, G, K), min(CHUNK, T), int(attempts), memory_budget, str(run.run_dir))
     program = eval_program(settings, actor_policy(d.hidden, d.depth, d.activation), min(CHUNK, T))
     keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
     t0 = time.time()
@@ -208,12 +216,13 @@ def evaluate_suite_runs(
     max_steps: int | None = None,
     out: str | Path | None = None,
     echo: Callable[[str], None] = print,
+    memory_budget: int | None = None,
 ) -> dict:
     """What `fedjax-nav evaluate RUN... --suite NAME` does: each run into RUN/eval/<suite>/ (or
     `out` for one run), a table per run. Returns {run_dir: summary}."""
     results = {}
     for run_dir in run_dirs:
-        res = evaluate_suite(run_dir, suite, attempts, range_noise, action_noise, seed, max_steps)
+        res = evaluate_suite(run_dir, suite, attempts, range_noise, action_noise, seed, max_steps, memory_budget)
         dest = Path(out) if out is not None and len(run_dirs) == 1 else rundir.eval_dir(run_dir, suite)
         paths = write_suite(res, dest)
         s = res["summary"]

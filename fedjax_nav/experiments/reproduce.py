@@ -38,11 +38,11 @@ from fedjax_nav.analysis.sweeps import write_tables
 from fedjax_nav.config.sweepfile import Sweep, SweepError, load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.thesis_report import (
-    _md_table,
-    _point_wall,
     by_setting,
     draw_figures,
     experiment_dir,
+    md_table,
+    point_wall,
     report_markdown,
     table2,
     table3,
@@ -199,11 +199,11 @@ def reproduce(
     figs = draw_figures(by_name, out, evals, tables)
     t2 = table2()
     rundir.atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
-    rundir.atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(_md_table(t2) + "\n"))
+    rundir.atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(md_table(t2) + "\n"))
     t3 = table3(by_name["methods"], points) if "methods" in by_name else pd.DataFrame()
     rundir.atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
     rundir.atomic_write(
-        out / "table3_communication.md", lambda p: Path(p).write_text(_md_table(t3) + "\n" if len(t3) else "")
+        out / "table3_communication.md", lambda p: Path(p).write_text(md_table(t3) + "\n" if len(t3) else "")
     )
     for name, t in tables.items():
         rundir.atomic_write(experiment_dir(out, name) / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
@@ -236,7 +236,7 @@ def reproduce(
         }
     )
     info["history"] = history
-    info["train_compute_s"] = sum(_point_wall(points / j.id) for j in jobs)
+    info["train_compute_s"] = sum(point_wall(points / j.id) for j in jobs)
     rundir.atomic_write(out / "reproduce.json", lambda p: Path(p).write_text(json.dumps(info, indent=1)))
     md = report_markdown(sweeps, tables, t2, t3, evals, info)
     rundir.atomic_write(out / "report.md", lambda p: Path(p).write_text(md))

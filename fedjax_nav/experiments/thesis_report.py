@@ -323,7 +323,7 @@ def _thesis_eval(s: Sweep) -> pd.DataFrame:
     )
 
 
-def _point_wall(d: Path) -> float:
+def point_wall(d: Path) -> float:
     f = d / rundir.SUMMARY
     return float(rundir.read_json(f).get("wall_s") or 0.0) if f.exists() else 0.0
 
