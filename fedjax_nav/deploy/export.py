@@ -45,6 +45,7 @@ def _project():
 
 
 FORMATS = ("numpy", "onnx")
+EXPORTABLE = ("ddpg", "td3")  # learners whose actor is DDPG's network (agents/networks.Actor)
 TEMPLATE = Path(__file__).with_name("policy_template.py")
 ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat: runtimes from 2022 on read it
 ONNX_IR_VERSION = 8  # the IR version of opset 17 (onnx would stamp its newest, which older runtimes refuse)
@@ -205,6 +206,11 @@ def export_run(
         raise ExportError(str(e)) from None
     flat, seed, agent = select(run, seed, agent)
     cfg = run.cfg
+    if cfg.learner not in EXPORTABLE:  # their actors end in a squashed Gaussian's mean, not these heads
+        raise ExportError(
+            f"{run.run_dir}: learner {cfg.learner}: export supports {', '.join(EXPORTABLE)} "
+            "(the deterministic actor) so far"
+        )
     e, d = cfg.env, cfg.ddpg
     weights = actor_weights(_tree_map_index(run.actor_params, flat), d.depth)
     obs_size = int(e.num_beams) + 4

@@ -56,6 +56,57 @@ def actor_policy(hidden: int, depth: int, activation: str) -> Callable:
     return policy
 
 
+@functools.lru_cache(maxsize=16)
+def _learner_policy(learner_name: str, frozen_values: tuple) -> Callable:
+    from fedjax_nav.agents import learners
+
+    learner = learners.get(learner_name)
+    nets = learner.make_nets(dict(frozen_values))
+
+    def policy(params, obs):
+        return learner.greedy(nets, params, obs, learner.memory(nets), jnp.bool_(True))[0]
+
+    return policy
+
+
+def greedy_policy(cfg) -> Callable:
+    """The run's greedy policy as `policy(actor_params, obs)`: DDPG's actor (`actor_policy`, the
+    thesis's evaluation program), or the learner's greedy action (agents.learners; TD3: the same
+    actor, SAC/PPO: the squashed Gaussian's mode). One function object per learner and network
+    settings, so that runs alike share one compiled evaluation. A policy with a memory (PPO's GRU)
+    is refused: the evaluation's rollout carries no hidden state yet."""
+    if cfg.learner == "ddpg":
+        d = cfg.ddpg
+        return actor_policy(d.hidden, d.depth, d.activation)
+    if cfg.learner == "ppo" and cfg.ppo.recurrent != "none":
+        raise EvalError(
+            f"learner ppo with ppo.recurrent={cfg.ppo.recurrent}: evaluating a recurrent policy is not supported yet"
+        )
+    from fedjax_nav.config import values
+
+    mine = {k: v for k, v in values(cfg).items() if k.split(".")[0] in ("learner", "ddpg", cfg.learner)}
+    return _learner_policy(cfg.learner, tuple(sorted(mine.items())))
+
+
+def _expected_actor(cfg, obs_size: int):
+    """The actor's parameter shapes for the run's learner (jax.eval_shape: nothing computed)."""
+    if cfg.learner == "ddpg":
+        from fedjax_nav.agents import ddpg
+
+        d = cfg.ddpg
+        nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
+        return jax.eval_shape(nets.actor.init, jax.random.key(0), jnp.zeros((obs_size,)))
+    from fedjax_nav.agents import learners
+    from fedjax_nav.config import traced_fields, values
+
+    learner = learners.get(cfg.learner)
+    nets = learner.make_nets(values(cfg))
+    # only shapes are asked: every traced value as an f32 scalar (evaluation does not import
+    # training, which builds the real HParams)
+    hp = {name: jax.ShapeDtypeStruct((), jnp.float32) for name in traced_fields()}
+    return jax.eval_shape(lambda k, h: learner.policy(learner.init(nets, k, obs_size, h)), jax.random.key(0), hp)
+
+
 def _flat_shapes(tree) -> dict[str, tuple]:
     return {
         "/".join(str(getattr(k, "key", k)) for k in kp): tuple(v.shape)
@@ -67,7 +118,6 @@ def load_run(run_dir: str | Path) -> RunAgents:
     """Read config.yaml and params.npz (actor leaves [seed, net, ...]) of a training run, through
     fedjax_nav.rundir; any problem is an EvalError naming the file."""
     from fedjax_nav import methods
-    from fedjax_nav.agents import ddpg
     from fedjax_nav.config import ConfigError
     from fedjax_nav.env import NavEnv as _Env
 
@@ -84,9 +134,8 @@ def load_run(run_dir: str | Path) -> RunAgents:
     n_robots = cfg.num_robots
     n_nets = 1 if method.shared_network else n_robots
     d = cfg.ddpg
-    nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
     obs_size = _Env(cfg.env.num_beams).obs_size
-    exp_flat = _flat_shapes(jax.eval_shape(nets.actor.init, jax.random.key(0), jnp.zeros((obs_size,))))
+    exp_flat = _flat_shapes(_expected_actor(cfg, obs_size))
     if set(exp_flat) != set(got_shapes):
         raise EvalError(
             f"{params_file}: actor arrays {sorted(got_shapes)} do not match the network of "
@@ -176,11 +225,11 @@ def evaluate_run(
     range_noise, action_noise = values.pop("range_noise"), values.pop("action_noise")
     w, meta = _worlds.load_with_meta(world)
     k_eff = int(attempts) * run.num_robots // run.n_nets
-    e, d = cfg.env, cfg.ddpg
+    e = cfg.env
     T = int(max_steps or e.episode_length)
     check_run_memory(run, w, attempts, max_steps, robot, memory_budget)
     result = evaluate_policy(
-        actor_policy(d.hidden, d.depth, d.activation),
+        greedy_policy(cfg),
         w,
         run.actor_params,
         attempts=k_eff,

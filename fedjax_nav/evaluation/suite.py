@@ -32,7 +32,7 @@ from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
-from fedjax_nav.evaluation.runs import actor_policy, load_run
+from fedjax_nav.evaluation.runs import greedy_policy, load_run
 from fedjax_nav.worlds import WorldError
 from fedjax_nav.worlds.suites import suite_names, suite_rooms
 
@@ -82,7 +82,7 @@ def evaluate_suite(
     except WorldError as e:
         raise EvalError(str(e)) from None
     run = load_run(run_dir)
-    cfg, e, d = run.cfg, run.cfg.env, run.cfg.ddpg
+    cfg, e = run.cfg, run.cfg.env
     world, families, room_seeds = suite_rooms(suite)
     R, G = world.goals.shape[:2]
     A, K = run.num_agents, int(attempts) * run.num_robots // run.n_nets
@@ -94,7 +94,7 @@ def evaluate_suite(
     room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), params)  # one room's shapes
     state = episode_state(settings, room)
     check_eval_memory(settings, state, (R, A, G, K), min(CHUNK, T), int(attempts), memory_budget, str(run.run_dir))
-    program = eval_program(settings, actor_policy(d.hidden, d.depth, d.activation), min(CHUNK, T))
+    program = eval_program(settings, greedy_policy(cfg), min(CHUNK, T))
     keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
     t0 = time.time()
     rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
