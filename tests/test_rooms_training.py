@@ -113,9 +113,7 @@ def test_fixed_room_program_is_unchanged_by_the_room_fields():
     """A fixed-room config gives the same program (jaxpr) and state structure whatever the
     procedural fields say, and bitwise the metrics of the default config."""
     base = load_config(None, TINY)
-    other = load_config(
-        None, TINY + ["env.rooms=fixed", "env.room_families=[walls]", "env.room_every=7"]
-    )
+    other = load_config(None, TINY + ["env.rooms=fixed", "env.room_families=[walls]", "env.room_every=7"])
     outs = []
     for cfg in (base, other):
         tr = Trainer(cfg)
