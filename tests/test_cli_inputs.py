@@ -108,3 +108,37 @@ def test_a_single_seed_point_larger_than_the_budget_is_refused(tmp_path):
     path = _sweep(tmp_path, seeds=1, set=["ddpg.buffer_size=100000000"])
     line = one_error_line(["sweep", path, "--out", tmp_path / "o", "--memory-budget", "1G", "--quiet"])
     assert "needs 1 rows" in line and "more than the memory budget" in line, line
+
+
+def _interrupted_train(tmp_path, signals: int, wait: float):
+    """`fedjax-nav train` in a subprocess, Ctrl-C'd `signals` times `wait` s after it said what it
+    trains (start-up and compilation still running): (exit code, stderr)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cmd = [sys.executable, "-m", "fedjax_nav.cli", "train", "--config", "thesis/flddpg", "--out", tmp_path / "run"]
+    cmd += ["--episodes", "5", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert p.stdout.readline().startswith("training ")
+        time.sleep(wait)
+        for _ in range(signals):
+            p.send_signal(signal.SIGINT)
+            time.sleep(0.3)
+        _, err = p.communicate(timeout=300)
+    finally:
+        p.kill()
+    return p.returncode, err
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_ctrl_c_while_a_run_starts_is_one_line_and_130(tmp_path, signals):
+    """A Ctrl-C during start-up and compilation (and a second one after it) used to print pages of
+    KeyboardInterrupt traceback, and sometimes end in a segmentation fault."""
+    rc, err = _interrupted_train(tmp_path, signals, wait=1.0)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted"), (rc, err[-2000:])

@@ -336,7 +336,30 @@ def _host_devices(args: argparse.Namespace) -> int:
     return 1
 
 
+INTERRUPTED = (
+    "interrupted: stopped at once; what was written before is kept "
+    "(a run: its last complete checkpoint, `fedjax-nav train --resume RUN` continues)"
+)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """`fedjax-nav ...`: the command's exit code (docs/reliability.md). A Ctrl-C the command does
+    not handle itself (during start-up or compilation, or a second one while a run saves after
+    the first) ends in one line and 130: the process then leaves at once (`os._exit`), because
+    an interpreter shutting down under XLA's running threads crashed (a segmentation fault in 3
+    of 5 trials) after printing pages of traceback."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print(f"error: {INTERRUPTED}", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        if argv is None:  # the console script: leave now; in-process callers get the code back
+            os._exit(130)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     n = _host_devices(args)
     if (
