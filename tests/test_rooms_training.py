@@ -75,7 +75,7 @@ def test_procedural_rooms_change_in_one_compilation_and_fixed_robots_keep_theirs
 
 def test_room_families_are_checked():
     with pytest.raises(ConfigError, match="room_families"):
-        load_config(None, TINY + ["env.room_families=[forest]"])
+        load_config(None, TINY + ["env.room_families=[jungle]"])
     with pytest.raises(ConfigError, match="one per robot"):
         load_config(None, TINY + ["env.room_families=[walls,boxes,walls]"])
     with pytest.raises(worlds.WorldError, match="room_spec"):

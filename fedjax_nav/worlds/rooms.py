@@ -153,6 +153,18 @@ class RoomSpec:
 
 
 SPEC_FIELDS = tuple(f.name for f in dataclasses.fields(RoomSpec))
+
+
+def _unknown_field(name: str) -> str:
+    """One line for a field RoomSpec lacks: the nearest names (there are over fifty fields, one
+    family's at a time: docs/generator.md lists them by family)."""
+    import difflib
+
+    near = difflib.get_close_matches(name, [f for f in SPEC_FIELDS if f != "family"], n=3, cutoff=0.5)
+    hint = f"did you mean {', '.join(near)}? " if near else ""
+    return f"unknown RoomSpec field '{shorten(name)}' ({hint}every field and its range: docs/generator.md)"
+
+
 _INT_FIELDS = {f.name for f in dataclasses.fields(RoomSpec) if f.type in ("int", "int | None")}
 _OPTIONAL_FIELDS = {f.name for f in dataclasses.fields(RoomSpec) if "None" in str(f.type)}
 
@@ -331,7 +343,7 @@ def make_spec(family: str = "mixture", **overrides) -> RoomSpec:
     """A checked RoomSpec; an unknown field raises WorldError naming it."""
     unknown = sorted(set(overrides) - set(SPEC_FIELDS))
     if unknown:
-        raise WorldError(f"unknown RoomSpec field '{unknown[0]}' (allowed: {', '.join(SPEC_FIELDS)})")
+        raise WorldError(_unknown_field(unknown[0]))
     return check_spec(RoomSpec(family=family, **overrides))
 
 
@@ -346,8 +358,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         if name == "family":
             raise WorldError("--set family=...: give the family with --family")
         if name not in SPEC_FIELDS:
-            allowed = ", ".join(f for f in SPEC_FIELDS if f != "family")
-            raise WorldError(f"unknown RoomSpec field '{shorten(name)}' (allowed: {allowed})")
+            raise WorldError(_unknown_field(name))
         _, lo, hi, doc = field_ranges()[name]
         if name in _OPTIONAL_FIELDS and text.lower() in ("none", "auto", "null"):
             out[name] = None
