@@ -54,6 +54,8 @@ def test_resume_from_the_learners_checkpoint_equals_the_uninterrupted_run(learne
     from fedjax_nav.training.run import train
 
     name, cfg, out = learner_run
+    if name != "ppo":  # off-policy state resumes as DDPG's does (tests/test_checkpoint.py); PPO's has empty leaves
+        pytest.skip("resume of a replay-buffer learner: tests/test_checkpoint.py")
     short = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, episodes=1))
     train(short, tmp_path / "r", progress=False)
     train(cfg, tmp_path / "r", progress=False, resume=True, allow_config_change=True)

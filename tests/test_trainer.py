@@ -456,3 +456,20 @@ def test_a_new_episode_metric_is_one_line_in_the_table(monkeypatch):
     _, m = jax.jit(lambda s, h: tr.chunk(s, h, jnp.int32(0), 1))(states, hp)
     assert np.all(np.asarray(m["steps"]) == T)
     np.testing.assert_allclose(np.asarray(m["goal_rate"]) * T, np.asarray(m["goals"]))
+
+
+@pytest.mark.parametrize("name", sorted(EXTRA))
+def test_every_thesis_run_is_bitwise_what_it_was_before_the_refactorings(name):
+    """This module's run of each thesis config, hashed (metrics, final networks and buffers),
+    equals the hash recorded from the code before the aggregators, the env builder and the
+    learner table were refactored (`scripts/trainer_fingerprints.py`; same jax/XLA versions and
+    CPU kind, else skipped and said)."""
+    import json
+
+    from test_programme_fingerprint import digest, versions
+
+    data = json.loads((Path(__file__).parent / "data" / "trainer_run_fingerprints.json").read_text())
+    if data["versions"] != versions():
+        pytest.skip(f"fingerprints recorded with {data['versions']}, this is {versions()}")
+    r = run_thesis(name)
+    assert digest(r.metrics, r.states) == data["cases"][name], f"{name}: the programme's numbers changed"
