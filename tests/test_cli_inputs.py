@@ -120,7 +120,7 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
     import time
 
     cmd = [sys.executable, "-m", "fedjax_nav.cli", "train", "--config", "thesis/flddpg", "--out", tmp_path / "run"]
-    cmd += ["--episodes", "5", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
+    cmd += ["--episodes", "1000", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
     p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
@@ -139,6 +139,9 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
 def test_ctrl_c_while_a_run_starts_is_one_line_and_130(tmp_path, signals):
     """A Ctrl-C during start-up and compilation (and a second one after it) used to print pages of
     KeyboardInterrupt traceback, and sometimes end in a segmentation fault."""
-    rc, err = _interrupted_train(tmp_path, signals, wait=1.0)
+    rc, err = _interrupted_train(tmp_path, signals, wait=0.2)
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert rc == 130 and len(lines) == 1 and lines[0].startswith("error: interrupted"), (rc, err[-2000:])
+    # with a warm compilation cache the loop may already run: the first Ctrl-C then saves and says
+    # how to resume; either way one line, 130, no traceback
+    assert rc == 130 and len(lines) == 1 and "Traceback" not in err, (rc, err[-2000:])
+    assert "interrupted" in lines[0], lines
