@@ -4,7 +4,7 @@ Why: brax 0.14.2 (the latest release on PyPI) calls `jax.device_put_replicated` 
 `brax.training.agents.{ppo,sac,apg}.train` and in `brax.training.pmap.bcast_local_devices`.
 jax deprecated that function in 0.8.1 and removed it in 0.10, so `ppo.train` / `sac.train` fail
 with `AttributeError: module 'jax' has no attribute 'device_put_replicated'` as soon as training
-starts (brax issue #671, https://github.com/google/brax/issues/671; fixed on brax's main branch,
+starts (the upstream report: https://github.com/google/brax/issues/671; fixed on brax's main branch,
 not yet released). Everything else brax's training touches still works on jax 0.10.2 (checked:
 the PPO and SAC trainers run end to end with this shim; see tests/test_brax.py and docs/brax.md).
 
