@@ -1,7 +1,8 @@
 """The run directory: the one owner of its file names, formats and atomic writes.
 
 Training, sweeps, evaluation, analysis and the CLI read and write run directories only through
-this module (it imports the config and nothing above it)::
+this module (it imports the config and nothing above it; the lock of a directory's one writer is
+`fedjax_nav.runlock`)::
 
     RUN/
       config.yaml        the resolved config                      write_config / read_config
@@ -14,7 +15,7 @@ this module (it imports the config and nothing above it)::
       eval/<world>/      one folder per evaluation world          eval_dir / read_eval
         eval.json, eval_episodes.csv, eval_trajectories.npz, eval_bars.png, eval_trajectories.png
       eval/<suite>/      a held-out suite: suite.json, suite_families.csv, suite_episodes.csv
-      .lock              "PID HOST" of the one process writing it  lock / RunLock
+      .lock              "PID HOST" of the one process writing it  fedjax_nav.runlock.RunLock
 
 A sweep folder (`fedjax-nav sweep --out`, the report folder of `reproduce`) holds run directories::
 
@@ -49,7 +50,8 @@ TENSORBOARD = "tensorboard"
 EVAL = "eval"
 NETWORKS = ("actor", "critic")
 
-LOCK = ".lock"
+LOCK = ".lock"  # "PID HOST" of the one writer (fedjax_nav.runlock)
+LOCK_TAKEOVER = ".lock.takeover"  # held for the moment a stale .lock is replaced
 # What a finished or started run leaves: `train --out` refuses a folder holding any (docs/reliability.md).
 RESULTS = (CONFIG, METRICS, SUMMARY, PARAMS, CURVES, CHECKPOINTS, EVAL, TENSORBOARD)
 
@@ -82,147 +84,7 @@ class WriteError(OSError):
     """Writing results failed (a full disk, permissions, ...); the message names the file (exit 4)."""
 
 
-# ----------------------------------------------------------------------------- ownership
-
-
-class RunLock:
-    """`RUN/.lock`, created atomically (O_EXCL) with the owner's "PID HOST": one writer per run
-    directory (`train`, `sweep`, `reproduce`, and `evaluate` while it reads a run and writes its
-    eval/). `release()` (or leaving a `with` block) removes it.
-
-    A lock is stale, and taken over with a line on stderr, when (1) its PID is not running on this
-    host (a killed run), or (2) it is empty and older than `EMPTY_LOCK_S` seconds (a process killed
-    between creating the file and writing its owner: a live owner writes it microseconds after
-    creating it, so an empty lock that old has no writer coming). A lock of another host, or one
-    whose text is not "PID HOST", is never taken over. Take-overs are serialised by a second
-    O_EXCL file (`LOCK_TAKEOVER`), so two processes finding the same stale lock never both take it."""
-
-    def __init__(self, directory: str | Path, what: str = "run directory"):
-        import socket
-        import time
-
-        self.path = Path(directory) / LOCK
-        self.owner = f"{os.getpid()} {socket.gethostname()}"
-        deadline = time.monotonic() + 10.0  # s: a take-over by another process lasts microseconds
-        while True:
-            if self._create():
-                return
-            stale = _stale(self.path)
-            if stale is None:
-                pid, host = _lock_owner(self.path)
-                if pid is None and not self.path.exists() and time.monotonic() < deadline:
-                    continue  # released between our attempt and the read: try again
-                who = f"process {pid} on {host}" if pid is not None else "another process"
-                raise RunDirError(
-                    f"{directory}: this {what} is in use by {who} (lock {self.path}); wait for "
-                    "it to end, or remove the lock file if that process is gone"
-                ) from None
-            if self._take_over(stale):
-                return
-            if time.monotonic() > deadline:
-                raise RunDirError(f"{directory}: could not take the lock {self.path} (another process keeps taking it)")
-            time.sleep(0.02)
-
-    def _create(self) -> bool:
-        """Create the lock holding our owner line; False when one exists."""
-        try:
-            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            return False
-        except OSError as e:
-            raise WriteError(f"{self.path}: cannot create the lock file ({e.strerror or e})") from None
-        with os.fdopen(fd, "w") as fh:
-            fh.write(self.owner + "\n")
-        return True
-
-    def _take_over(self, why: str) -> bool:
-        """Replace the stale lock (stale for `why`) by ours, holding `LOCK_TAKEOVER` meanwhile (and
-        checked stale again under it). False when another process holds the take-over or took the
-        lock first."""
-        import sys
-
-        guard = self.path.with_name(LOCK_TAKEOVER)
-        try:
-            fd = os.open(guard, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            if _age(guard) > EMPTY_LOCK_S:  # a take-over killed half-way: nobody is coming back for it
-                _unlink_quietly(guard)
-            return False
-        except OSError as e:
-            raise WriteError(f"{guard}: cannot create the lock file ({e.strerror or e})") from None
-        os.close(fd)
-        try:
-            if _stale(self.path) is None:  # released or taken over meanwhile
-                return False
-            print(f"{self.path}: taking over a stale lock ({why})", file=sys.stderr)
-            self.path.unlink(missing_ok=True)
-            return self._create()
-        finally:
-            _unlink_quietly(guard)
-
-    def release(self) -> None:
-        try:
-            if self.path.read_text().strip() == self.owner:
-                self.path.unlink()
-        except OSError:
-            pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.release()
-
-
-LOCK_TAKEOVER = ".lock.takeover"  # held for the moment a stale .lock is replaced
-EMPTY_LOCK_S = 5.0  # s: an empty .lock older than this was left by a process killed while creating it
-
-
-def _stale(path: Path) -> str | None:
-    """Why the lock at `path` is stale (see RunLock), or None when it is held (or gone)."""
-    import socket
-
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        return None
-    except OSError:
-        return None  # unreadable: treat as held
-    if not text.strip():
-        age = _age(path)
-        return f"empty for {age:.0f} s" if age > EMPTY_LOCK_S else None
-    pid, host = _lock_owner(path, text)
-    if pid is not None and host == socket.gethostname() and not _alive(pid):
-        return f"process {pid} is no longer running"
-    return None
-
-
-def _age(path: Path) -> float:
-    """Seconds since `path` was last modified (0 when it is gone)."""
-    import time
-
-    try:
-        return time.time() - path.stat().st_mtime
-    except OSError:
-        return 0.0
-
-
-def _lock_owner(path: Path, text: str | None = None) -> tuple[int | None, str | None]:
-    try:
-        pid, host = (path.read_text() if text is None else text).split()[:2]
-        return int(pid), host
-    except (OSError, ValueError):  # being written right now, or foreign: treat as held
-        return None, None
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
+# ----------------------------------------------------------------------------- the results a folder holds
 
 
 def results_in(directory: str | Path) -> list[str]:
@@ -252,18 +114,19 @@ def atomic_write(path: str | Path, write: Callable[[Path], Any]) -> Path:
         write(tmp)
         os.replace(tmp, path)
     except OSError as e:  # e.g. a full disk: keep the old file, leave no half-written temporary
-        _unlink_quietly(tmp)
+        unlink_quietly(tmp)
         raise WriteError(
             f"{path}: cannot be written ({e.strerror or e}); the previous version of the file "
             "and the last complete checkpoint are kept"
         ) from None
     except BaseException:
-        _unlink_quietly(tmp)
+        unlink_quietly(tmp)
         raise
     return path
 
 
-def _unlink_quietly(path: Path) -> None:
+def unlink_quietly(path: Path) -> None:
+    """Remove `path` if it is there; a failure to remove it is ignored (a temporary, a lock's guard)."""
     try:
         path.unlink(missing_ok=True)
     except OSError:

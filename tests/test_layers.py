@@ -16,6 +16,7 @@ LAYERS = [
     ["agents", "federated"],
     ["config"],
     ["rundir"],
+    ["runlock"],  # the run lock imports rundir (its file names and errors)
     ["training"],
     ["evaluation", "analysis"],
     ["experiments", "deploy"],

@@ -26,7 +26,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from fedjax_nav import cli, config, rundir
+from fedjax_nav import cli, config, rundir, runlock
 from fedjax_nav.config import ConfigError, load_config
 from fedjax_nav.training.hparams import hparams_from_config
 from fedjax_nav.training.run import DivergenceError, train
@@ -132,7 +132,7 @@ def test_a_second_train_on_the_same_out_gets_exit_2_and_a_stale_lock_is_taken_ov
         proc.communicate(timeout=60)
     # the killed run's lock is stale (dead PID on this host): taken over with a message, released after
     assert (out / rundir.LOCK).read_text().split()[0] == str(proc.pid)
-    with rundir.RunLock(out):
+    with runlock.RunLock(out):
         assert (out / rundir.LOCK).read_text().split()[0] == str(os.getpid())
     assert "stale lock" in capfd.readouterr().err
     assert not (out / rundir.LOCK).exists()

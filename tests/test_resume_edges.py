@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fedjax_nav import cli, rundir
+from fedjax_nav import cli, rundir, runlock
 
 TIMEOUT = 120  # s, per subprocess
 
@@ -73,7 +73,7 @@ def test_evaluate_refuses_a_run_in_use_and_writes_nothing(untrained_run, capfd, 
     """While a writer (here this process, as `train --overwrite` would) holds RUN/.lock, evaluate
     neither reads the run nor writes RUN/eval/."""
     run = untrained_run
-    with rundir.RunLock(run):
+    with runlock.RunLock(run):
         rc = cli.main(["evaluate", str(run), "--no-figures", "--attempts", "1", *what])
         one_line(capfd, rc, 2, str(run), "in use", f"process {os.getpid()}", str(run / rundir.LOCK))
         assert (run / rundir.LOCK).read_text().split()[0] == str(os.getpid())  # still the writer's
@@ -91,14 +91,14 @@ def test_evaluate_of_a_missing_folder_names_it(tmp_path, capfd):
 
 def test_an_empty_lock_is_taken_over_once_it_is_old(tmp_path, capfd):
     """An empty .lock: a process killed between creating it and writing its owner. Fresh, it may be
-    being written (refused); older than rundir.EMPTY_LOCK_S, it is stale (taken over, one line)."""
+    being written (refused); older than runlock.EMPTY_LOCK_S, it is stale (taken over, one line)."""
     lock = tmp_path / rundir.LOCK
     lock.touch()
     with pytest.raises(rundir.RunDirError, match="in use by another process"):
-        rundir.RunLock(tmp_path)
-    old = time.time() - 60  # s, well beyond rundir.EMPTY_LOCK_S
+        runlock.RunLock(tmp_path)
+    old = time.time() - 60  # s, well beyond runlock.EMPTY_LOCK_S
     os.utime(lock, (old, old))
-    with rundir.RunLock(tmp_path):
+    with runlock.RunLock(tmp_path):
         assert lock.read_text().split() == [str(os.getpid()), socket.gethostname()]
     assert "taking over a stale lock (empty for" in capfd.readouterr().err
     assert not lock.exists() and not (tmp_path / rundir.LOCK_TAKEOVER).exists()
@@ -106,7 +106,7 @@ def test_an_empty_lock_is_taken_over_once_it_is_old(tmp_path, capfd):
     lock.write_text(f"{dead_pid()} another-host\n")
     os.utime(lock, (old, old))
     with pytest.raises(rundir.RunDirError, match="on another-host"):
-        rundir.RunLock(tmp_path)
+        runlock.RunLock(tmp_path)
 
 
 def test_a_stale_lock_is_taken_over_by_exactly_one_of_several(tmp_path):
@@ -114,9 +114,9 @@ def test_a_stale_lock_is_taken_over_by_exactly_one_of_several(tmp_path):
     told it is in use."""
     (tmp_path / rundir.LOCK).write_text(f"{dead_pid()} {socket.gethostname()}\n")
     script = (
-        "import sys, time\nfrom fedjax_nav import rundir\nt0 = float(sys.argv[2])\n"
+        "import sys, time\nfrom fedjax_nav import rundir, runlock\nt0 = float(sys.argv[2])\n"
         "while time.time() < t0: pass\n"
-        "try:\n    lock = rundir.RunLock(sys.argv[1])\nexcept rundir.RunDirError:\n    print('refused'); sys.exit()\n"
+        "try:\n    lock = runlock.RunLock(sys.argv[1])\nexcept rundir.RunDirError:\n    print('refused'); sys.exit()\n"
         "print('took', flush=True); time.sleep(1.5); lock.release()\n"
     )
     t0 = str(time.time() + 3.0)  # after every interpreter has started

@@ -1,6 +1,6 @@
 """The run directory has one owner, `fedjax_nav.rundir`: no other source spells the names of its
 files and folders (or a sweep folder's), and `train --resume` refuses a changed config in one
-function, `training.run.refuse_config_change`, before it loads anything and against the checkpoint."""
+function, `training.preflight.refuse_config_change`, before it loads anything and against the checkpoint."""
 
 import ast
 from dataclasses import replace
@@ -10,7 +10,7 @@ import pytest
 
 from fedjax_nav import cli, rundir
 from fedjax_nav.config import Config, ConfigError, save_config, to_dict
-from fedjax_nav.training import run as training_run
+from fedjax_nav.training import preflight
 
 PKG = Path(__file__).resolve().parents[1] / "fedjax_nav"
 NAMES = {v for k, v in vars(rundir).items() if k.isupper() and isinstance(v, str)}  # metrics.csv, points, ...
@@ -74,20 +74,20 @@ def test_no_source_but_rundir_spells_a_run_directory_name():
 
 def test_the_refusal_permits_only_the_changeable_fields_and_only_when_asked():
     changed = ["run.episodes", "ddpg.gamma"]
-    training_run.refuse_config_change(["run.episodes", "run.tensorboard"], True, "RUN/config.yaml", "x")
-    training_run.refuse_config_change([], False, "RUN/config.yaml", "x")
+    preflight.refuse_config_change(["run.episodes", "run.tensorboard"], True, "RUN/config.yaml", "x")
+    preflight.refuse_config_change([], False, "RUN/config.yaml", "x")
     with pytest.raises(ConfigError) as without:
-        training_run.refuse_config_change(changed, False, "RUN/config.yaml", "the saved one")
+        preflight.refuse_config_change(changed, False, "RUN/config.yaml", "the saved one")
     head = str(without.value).split("; resuming")[0]
     assert head == "RUN/config.yaml: differs from the saved one in run.episodes, ddpg.gamma", head
     assert "--allow-config-change" in str(without.value)
     with pytest.raises(ConfigError) as allowed:
-        training_run.refuse_config_change(changed, True, "RUN/config.yaml", "the saved one")
+        preflight.refuse_config_change(changed, True, "RUN/config.yaml", "the saved one")
     assert str(allowed.value).split("; resuming")[0].endswith(" in ddpg.gamma"), str(allowed.value)
 
 
 class _Checkpoints:
-    """What `_check_resumable` reads of a `Checkpointer`: the latest step and its saved config."""
+    """What `check_resumable` reads of a `Checkpointer`: the latest step and its saved config."""
 
     def __init__(self, folder: Path, saved: Config, step: int = 4):
         self.dir, self.saved, self.step = folder / rundir.CHECKPOINTS, saved, step
@@ -102,13 +102,13 @@ class _Checkpoints:
 @pytest.fixture
 def calls(monkeypatch):
     """Every call of the refusal (then the real one runs)."""
-    seen, real = [], training_run.refuse_config_change
+    seen, real = [], preflight.refuse_config_change
 
     def spy(changed, allow, path, against):
         seen.append((sorted(changed), allow, str(path)))
         return real(changed, allow, path, against)
 
-    monkeypatch.setattr(training_run, "refuse_config_change", spy)
+    monkeypatch.setattr(preflight, "refuse_config_change", spy)
     return seen
 
 
@@ -122,7 +122,7 @@ def test_both_resume_checks_refuse_through_the_one_function(calls, tmp_path, cap
     # inside train(): the config to resume with against the checkpoint's
     asked = replace(saved, ddpg=replace(saved.ddpg, gamma=0.5))
     with pytest.raises(ConfigError) as inside:
-        training_run._check_resumable(_Checkpoints(tmp_path, saved), asked, tmp_path, False)
+        preflight.check_resumable(_Checkpoints(tmp_path, saved), asked, tmp_path, False)
     config = str(tmp_path / rundir.CONFIG)
     assert calls == [(["ddpg.gamma"], False, config), (["ddpg.gamma"], False, config)]
     # one sentence: the same fields and the same hint, only what was compared differs

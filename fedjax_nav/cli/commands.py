@@ -33,7 +33,8 @@ def _train(args: argparse.Namespace) -> int:
     from fedjax_nav import rundir
     from fedjax_nav.config import diff, load_config
     from fedjax_nav.config.sweepfile import SweepError
-    from fedjax_nav.training.run import refuse_config_change, train
+    from fedjax_nav.training.preflight import refuse_config_change
+    from fedjax_nav.training.run import train
     from fedjax_nav.training.sweep import parse_bytes
 
     overrides = list(args.set or [])
@@ -178,13 +179,14 @@ def _evaluated_dirs(args: argparse.Namespace) -> list[Path]:
 
 
 def _evaluation_lock(run: Path, writes_into: bool):
-    """The run's lock (`rundir.RunLock`) for the whole evaluation: its params.npz is read and its
+    """The run's lock (`runlock.RunLock`) for the whole evaluation: its params.npz is read and its
     eval/ written while no `train` (e.g. `--overwrite`) can change the folder; a run in use is
     refused (exit 2). A run folder the user cannot write to is read without a lock when the
     evaluation is written elsewhere (`--out`)."""
     import contextlib
 
-    from fedjax_nav.rundir import RunLock, WriteError
+    from fedjax_nav.rundir import WriteError
+    from fedjax_nav.runlock import RunLock
 
     try:
         return RunLock(run, "run directory")
@@ -291,8 +293,9 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 
 def _lock(out: Path, what: str):
-    """Create `out` and hold its lock (`rundir.RunLock`): one writing process per folder."""
-    from fedjax_nav.rundir import RunDirError, RunLock, WriteError
+    """Create `out` and hold its lock (`runlock.RunLock`): one writing process per folder."""
+    from fedjax_nav.rundir import RunDirError, WriteError
+    from fedjax_nav.runlock import RunLock
 
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,9 @@
 """The host side of a training run: chunks of compiled episodes, progress, results on disk.
 
 The run directory's files (config.yaml, metrics.csv, summary.json, params.npz, checkpoints/) are
-written through `fedjax_nav.rundir`, atomically. The learning-curve figure is drawn by the
-layer above (`fedjax_nav.analysis.plots.draw_run`, called by `fedjax-nav train`).
+written through `fedjax_nav.rundir`, atomically. What a run refuses before its loop starts, and
+where a resumed one starts, is `fedjax_nav.training.preflight`. The learning-curve figure is drawn
+by the layer above (`fedjax_nav.analysis.plots.draw_run`, called by `fedjax-nav train`).
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav import rundir
-from fedjax_nav.config import Config, ConfigError
+from fedjax_nav.config import Config
+from fedjax_nav.runlock import RunLock
+from fedjax_nav.training import preflight
 from fedjax_nav.training.hparams import HParams, hparams_from_config
 from fedjax_nav.training.metrics import (
     DivergenceError,
@@ -30,17 +33,6 @@ from fedjax_nav.training.metrics import (
 )
 from fedjax_nav.training.tblog import TensorBoardLog
 from fedjax_nav.training.trainer import Trainer
-
-# Fields `train --resume RUN --allow-config-change` may change against the config fingerprinted in
-# the run's checkpoint (none changes the program or the numbers of a finished episode).
-RESUME_CHANGEABLE = (
-    "run.episodes",
-    "run.checkpoint_every",
-    "run.keep_checkpoints",
-    "run.max_abs_q",
-    "run.max_critic_loss",
-    "run.tensorboard",
-)
 
 
 def train(
@@ -69,10 +61,11 @@ def train(
     runs this same call; only process 0 writes files).
 
     Before allocating anything: the memory estimate against `memory_budget` (bytes; default the
-    available memory; `ResourceError` naming the field), then `out` is locked (`rundir.RunLock`)
+    available memory; `ResourceError` naming the field), then `out` is locked (`runlock.RunLock`)
     for the whole run. A new run refuses a folder holding results unless `overwrite` (they are
     removed first); a resumed one refuses a config that differs from the one saved in the
-    checkpoint, except `RESUME_CHANGEABLE` fields with `allow_config_change` (`refuse_config_change`).
+    checkpoint, except the `RESUME_CHANGEABLE` fields with `allow_config_change` (these refusals and
+    the choice of the checkpoint to resume from: `fedjax_nav.training.preflight`).
     """
     from fedjax_nav.training import parallel
     from fedjax_nav.training.resources import check_memory
@@ -90,101 +83,8 @@ def train(
         raise rundir.RunDirError(f"{out}: exists and is not a directory") from None
     except OSError as e:
         raise rundir.WriteError(f"{out}: cannot create the run directory ({e.strerror or e})") from None
-    with rundir.RunLock(out):
+    with RunLock(out):
         return _train(*args)
-
-
-def refuse_config_change(changed, allow_config_change: bool, path: str | Path, against: str) -> None:
-    """The one refusal of a resume with a changed config (`fedjax-nav train --resume` before it
-    loads anything, `train(resume=True)` against the checkpoint): `ConfigError` (exit 2) naming
-    `path`, what it was compared `against` and every field of `changed` (dotted names) that
-    `allow_config_change` does not permit: all of them without it, those outside
-    `RESUME_CHANGEABLE` with it. Returns when nothing is refused."""
-    refused = [k for k in changed if not (allow_config_change and k in RESUME_CHANGEABLE)]
-    if not refused:
-        return
-    sections: dict[str, list[str]] = {}
-    for k in RESUME_CHANGEABLE:
-        sections.setdefault(k.split(".")[0], []).append(k.split(".", 1)[1])
-    permitted = ", ".join(f"{s}.{{{', '.join(names)}}}" for s, names in sections.items())  # run.{episodes, ...}
-    hint = (
-        f"--allow-config-change permits {permitted} only"
-        if allow_config_change
-        else f"restore the config, start a new run, or pass --allow-config-change (it permits {permitted} only)"
-    )
-    raise ConfigError(f"{path}: differs from {against} in {', '.join(refused)}; resuming would mix two runs: {hint}")
-
-
-def _check_resumable(ckpt, cfg: Config, out: Path, allow_config_change: bool, step: int | None = None) -> None:
-    """The config to resume with against the one fingerprinted in checkpoint `step` (default: the
-    latest; `CheckpointError` when there is none or its history cannot be read)."""
-    from fedjax_nav.config import diff, from_dict
-    from fedjax_nav.training.checkpoint import fingerprint
-
-    step = ckpt.latest() if step is None else step
-    saved = ckpt.saved_config(step)
-    if saved is not None:
-        src = f"{ckpt.dir / str(step)}"
-        try:
-            changed = diff(from_dict(saved, src), cfg)
-        except ConfigError:  # saved by another version of the code: compare what it holds
-            now = to_dict_flat(cfg)
-            changed = [k for k, v in to_dict_flat(saved).items() if k in now and now[k] != v]
-        against = f"the config saved in {src} (sha1 {fingerprint(saved)[:12]})"
-        refuse_config_change(changed, allow_config_change, out / rundir.CONFIG, against)
-    if cfg.run.episodes < step:
-        raise ConfigError(
-            f"{out / rundir.CONFIG}: run.episodes ({cfg.run.episodes}) is below the {step} episodes already done"
-        )
-
-
-@dataclass(frozen=True)
-class _Resume:
-    """Where a resumed run may start: `steps`, the checkpoints to try newest first (empty: none is
-    complete, start again from episode 0); `damaged`, newer ones already found unreadable
-    ({step: error line}); `asked`, the step of `--from-checkpoint` (no fallback) or None."""
-
-    steps: tuple[int, ...]
-    damaged: dict
-    asked: int | None
-    allow_config_change: bool
-
-
-def _plan_resume(ckpt, cfg: Config, out: Path, allow_config_change: bool, asked: int | None) -> _Resume:
-    """Before anything is allocated: the newest checkpoint (or `asked`) whose saved config can be
-    read is checked against `cfg` (`_check_resumable`; a changed config is refused here, never
-    fallen back from); newer ones whose history cannot be read are noted as damaged."""
-    from fedjax_nav.training.checkpoint import CheckpointError
-
-    steps = ckpt.steps()[::-1]
-    if asked is not None:
-        if asked not in steps:
-            held = ", ".join(map(str, steps[::-1])) or "none"
-            raise CheckpointError(f"{ckpt.dir}: no checkpoint {asked} (--from-checkpoint); complete ones: {held}")
-        steps = [asked]
-    damaged = {}
-    for i, step in enumerate(steps):
-        try:
-            _check_resumable(ckpt, cfg, out, allow_config_change, step)
-        except CheckpointError as e:
-            damaged[step] = str(e)
-            continue
-        return _Resume(tuple(steps[i:]), damaged, asked, allow_config_change)
-    if steps:
-        raise ckpt.no_intact(damaged, asked)
-    return _Resume((), {}, asked, allow_config_change)
-
-
-def to_dict_flat(cfg) -> dict:
-    """{"ddpg.gamma": 0.9, ...} of a Config or of its to_dict mapping."""
-    from fedjax_nav.config import to_dict
-
-    d = cfg if isinstance(cfg, dict) else to_dict(cfg)
-    return {
-        f"{s}.{k}" if isinstance(v, dict) else s: v
-        for s, sec in d.items()
-        for k, v in (sec.items() if isinstance(sec, dict) else [(s, sec)])
-    }
 
 
 # ----------------------------------------------------------------------------- the run, step by step
@@ -201,7 +101,7 @@ class _Run:
     mesh: Any
     writer: bool
     ckpt: Any
-    resume: _Resume | None  # None: a new run
+    resume: preflight.Resume | None  # None: a new run
 
     def say(self, line: str) -> None:
         """A one-line notice on stderr (by the writer): what a resume did instead of the obvious."""
@@ -248,42 +148,27 @@ def _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, wr
     config.yaml before anything else (so that a run killed at any later moment can be resumed);
     the checkpoints are opened; a resumed run refuses a config that differs from its checkpoint's."""
     from fedjax_nav.training import parallel
-    from fedjax_nav.training.checkpoint import Checkpointer, finished_steps
+    from fedjax_nav.training.checkpoint import Checkpointer
 
-    if writer and not resume and rundir.results_in(out):  # (other processes: process 0 may have begun)
-        held = rundir.results_in(out)
-        if not overwrite:
-            if rundir.CONFIG in held and not finished_steps(out):
-                raise FileExistsError(
-                    f"{out}: holds a run stopped before its first checkpoint ({', '.join(held)}); resume it with "
-                    f"--resume {out} (it starts again from episode 0), pick another --out, or pass --overwrite"
-                )
-            raise FileExistsError(
-                f"{out}: already holds results ({', '.join(held)}); resume it with --resume "
-                f"{out}, pick another --out, or pass --overwrite to replace them"
-            )
-        rundir.clear_results(out)
-    if writer and not resume:
+    if writer and not resume:  # (other processes: process 0 may have begun)
+        preflight.check_new_folder(out, overwrite)
         rundir.write_config(out, cfg)
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints, process=parallel.checkpoint_process(mesh))
-    plan = _plan_resume(ckpt, cfg, out, allow_config_change, from_checkpoint) if resume else None
+    plan = preflight.plan_resume(ckpt, cfg, out, allow_config_change, from_checkpoint) if resume else None
     return _Run(cfg, out, trainer, mesh, writer, ckpt, plan)
 
 
 def _restore(run: _Run, states):
     """(states, metrics, first episode, metrics table). A new run: `states` as they are (refusing
     a folder that holds checkpoints). A resumed one: the first checkpoint of its plan that
-    restores (`_Resume`; the newer, damaged ones are removed and a line names both steps), its
+    restores (`preflight.Resume`; the newer, damaged ones are removed and a line names both steps), its
     metrics.csv written again from it (also when the run had already finished); or, when none is
     complete, episode 0 (metrics.csv and tensorboard/ of the stopped attempt removed, a line says so)."""
     from fedjax_nav.training import parallel
 
     plan = run.resume
     if plan is None:
-        if run.ckpt.latest() is not None:
-            raise FileExistsError(
-                f"{run.out}: already holds checkpoints; resume it with --resume {run.out} or pick another --out"
-            )
+        preflight.refuse_held_checkpoints(run.ckpt, run.out)
         return states, None, 0, None
     if not plan.steps:
         run.say(f"{run.out}: no complete checkpoint (stopped before its first one); starting again from episode 0")
@@ -293,7 +178,7 @@ def _restore(run: _Run, states):
     step, restored, metrics, damaged = run.ckpt.restore_intact(
         parallel.checkpoint_template(states, run.mesh),
         plan.steps,
-        check=lambda step: _check_resumable(run.ckpt, run.cfg, run.out, plan.allow_config_change, step),
+        check=lambda step: preflight.check_resumable(run.ckpt, run.cfg, run.out, plan.allow_config_change, step),
         damaged=plan.damaged,
         asked=plan.asked,
     )

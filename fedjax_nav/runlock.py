@@ -1,0 +1,153 @@
+"""The lock of a run directory's one writer: `RUN/.lock` (`fedjax_nav.rundir.LOCK`) holding the
+owner's "PID HOST", created atomically; a stale one (its process gone, or empty and old) is taken
+over, one process at a time (docs/reliability.md).
+
+The file names are `fedjax_nav.rundir`'s (`LOCK`, `LOCK_TAKEOVER`), and so are the errors: a lock
+held by another process is a `RunDirError` (exit 2 at the CLI), one that cannot be created a
+`WriteError` (exit 4).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from fedjax_nav.rundir import LOCK, LOCK_TAKEOVER, RunDirError, WriteError, unlink_quietly
+
+EMPTY_LOCK_S = 5.0  # s: an empty .lock older than this was left by a process killed while creating it
+
+
+class RunLock:
+    """`RUN/.lock`, created atomically (O_EXCL) with the owner's "PID HOST": one writer per run
+    directory (`train`, `sweep`, `reproduce`, and `evaluate` while it reads a run and writes its
+    eval/). `release()` (or leaving a `with` block) removes it.
+
+    A lock is stale, and taken over with a line on stderr, when (1) its PID is not running on this
+    host (a killed run), or (2) it is empty and older than `EMPTY_LOCK_S` seconds (a process killed
+    between creating the file and writing its owner: a live owner writes it microseconds after
+    creating it, so an empty lock that old has no writer coming). A lock of another host, or one
+    whose text is not "PID HOST", is never taken over. Take-overs are serialised by a second
+    O_EXCL file (`LOCK_TAKEOVER`), so two processes finding the same stale lock never both take it."""
+
+    def __init__(self, directory: str | Path, what: str = "run directory"):
+        import socket
+        import time
+
+        self.path = Path(directory) / LOCK
+        self.owner = f"{os.getpid()} {socket.gethostname()}"
+        deadline = time.monotonic() + 10.0  # s: a take-over by another process lasts microseconds
+        while True:
+            if self._create():
+                return
+            stale = _stale(self.path)
+            if stale is None:
+                pid, host = _lock_owner(self.path)
+                if pid is None and not self.path.exists() and time.monotonic() < deadline:
+                    continue  # released between our attempt and the read: try again
+                who = f"process {pid} on {host}" if pid is not None else "another process"
+                raise RunDirError(
+                    f"{directory}: this {what} is in use by {who} (lock {self.path}); wait for "
+                    "it to end, or remove the lock file if that process is gone"
+                ) from None
+            if self._take_over(stale):
+                return
+            if time.monotonic() > deadline:
+                raise RunDirError(f"{directory}: could not take the lock {self.path} (another process keeps taking it)")
+            time.sleep(0.02)
+
+    def _create(self) -> bool:
+        """Create the lock holding our owner line; False when one exists."""
+        try:
+            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            return False
+        except OSError as e:
+            raise WriteError(f"{self.path}: cannot create the lock file ({e.strerror or e})") from None
+        with os.fdopen(fd, "w") as fh:
+            fh.write(self.owner + "\n")
+        return True
+
+    def _take_over(self, why: str) -> bool:
+        """Replace the stale lock (stale for `why`) by ours, holding `LOCK_TAKEOVER` meanwhile (and
+        checked stale again under it). False when another process holds the take-over or took the
+        lock first."""
+        import sys
+
+        guard = self.path.with_name(LOCK_TAKEOVER)
+        try:
+            fd = os.open(guard, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            if _age(guard) > EMPTY_LOCK_S:  # a take-over killed half-way: nobody is coming back for it
+                unlink_quietly(guard)
+            return False
+        except OSError as e:
+            raise WriteError(f"{guard}: cannot create the lock file ({e.strerror or e})") from None
+        os.close(fd)
+        try:
+            if _stale(self.path) is None:  # released or taken over meanwhile
+                return False
+            print(f"{self.path}: taking over a stale lock ({why})", file=sys.stderr)
+            self.path.unlink(missing_ok=True)
+            return self._create()
+        finally:
+            unlink_quietly(guard)
+
+    def release(self) -> None:
+        try:
+            if self.path.read_text().strip() == self.owner:
+                self.path.unlink()
+        except OSError:
+            pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def _stale(path: Path) -> str | None:
+    """Why the lock at `path` is stale (see RunLock), or None when it is held (or gone)."""
+    import socket
+
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return None  # unreadable: treat as held
+    if not text.strip():
+        age = _age(path)
+        return f"empty for {age:.0f} s" if age > EMPTY_LOCK_S else None
+    pid, host = _lock_owner(path, text)
+    if pid is not None and host == socket.gethostname() and not _alive(pid):
+        return f"process {pid} is no longer running"
+    return None
+
+
+def _age(path: Path) -> float:
+    """Seconds since `path` was last modified (0 when it is gone)."""
+    import time
+
+    try:
+        return time.time() - path.stat().st_mtime
+    except OSError:
+        return 0.0
+
+
+def _lock_owner(path: Path, text: str | None = None) -> tuple[int | None, str | None]:
+    try:
+        pid, host = (path.read_text() if text is None else text).split()[:2]
+        return int(pid), host
+    except (OSError, ValueError):  # being written right now, or foreign: treat as held
+        return None, None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
