@@ -26,7 +26,7 @@ before compiling), and how much that is above its RSS before compiling.
     python scripts/bench_dense.py --record docs/dense_rooms.md
 
 The procedural families' env step (forest, warehouse, maze, cave against a sparse family):
-scripts/bench_dense_families.py, which reuses this script's timing helpers.
+scripts/bench_dense_families.py, which reuses this script's geometry, timing and report helpers.
 """
 
 from __future__ import annotations
@@ -175,6 +175,10 @@ def reset_peak_rss() -> None:
 # ----------------------------------------------------------------------------- child: compile + memory
 
 
+def _variant(room: str, layout: str, method: str) -> dict:
+    return {"room": room, "layout": layout, "method": method}
+
+
 def child(room: str, layout: str, batch: int, method: str) -> dict:
     f, args = make_case(room, layout, batch, method)
     jax.block_until_ready(args)
@@ -187,9 +191,7 @@ def child(room: str, layout: str, batch: int, method: str) -> dict:
     jax.block_until_ready(compiled(*args))
     first = time.perf_counter() - t0
     return {
-        "room": room,
-        "layout": layout,
-        "method": method,
+        **_variant(room, layout, method),
         "compile_s": c,
         "first_call_s": first,
         "rss_before_mb": before,
@@ -210,9 +212,7 @@ def run_child(room: str, layout: str, batch: int, method: str, timeout: float, r
             proc.kill()
             proc.wait()
             return {
-                "room": room,
-                "layout": layout,
-                "method": method,
+                **_variant(room, layout, method),
                 "killed_after_s": elapsed,
                 "killed_for": "time" if elapsed > timeout else "memory",
                 "rss_peak_mb": hwm,
@@ -305,6 +305,24 @@ def machine() -> str:
     )
 
 
+def report_head(script: str, argv=None) -> list[str]:
+    """The first lines of a benchmark's report: the command line (argv: this process's by default)
+    and the machine."""
+    cmd = " ".join(argv if argv is not None else sys.argv[1:])
+    return [f"Command: `python scripts/{script} {cmd}`".rstrip(), "", f"Machine: {machine()}", ""]
+
+
+def report_end(out: list[str], script: str, record: str | None) -> None:
+    """The load average after the run closes the report `out`; printed, and appended to the
+    markdown file `record` (if given) under a dated heading naming `script`."""
+    out.append(f"\nLoad average after: {os.getloadavg()[0]:.2f}")
+    text = "\n".join(out)
+    print(text)
+    if record:
+        with open(record, "a") as fh:
+            fh.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `scripts/{script}`\n\n{text}\n")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--batch", type=int, default=4096)
@@ -330,12 +348,7 @@ def main(argv=None):
         return
 
     rooms, layouts = a.rooms.split(","), a.layouts.split(",")
-    out = [
-        f"Command: `python scripts/bench_dense.py {' '.join(argv if argv is not None else sys.argv[1:])}`".rstrip(),
-        "",
-        f"Machine: {machine()}",
-        "",
-    ]
+    out = report_head("bench_dense.py", argv)
 
     stacks = {r: build_rooms(r) for r in rooms}
     cases = {}
@@ -404,12 +417,7 @@ def main(argv=None):
     if a.sweep:
         out += ["", f"Threshold sweep (per-pose layout, batch {a.batch}, median of {a.repeats}):", ""]
         out += sweep(a.batch, a.repeats)
-    out.append(f"\nLoad average after: {os.getloadavg()[0]:.2f}")
-    text = "\n".join(out)
-    print(text)
-    if a.record:
-        with open(a.record, "a") as fh:
-            fh.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `scripts/bench_dense.py`\n\n{text}\n")
+    report_end(out, "bench_dense.py", a.record)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -26,7 +25,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-from bench_dense import MAX_RANGE, NUM_BEAMS, compile_seconds, machine, rows_of, step_geometry, throughput  # noqa: E402
+from bench_dense import (  # noqa: E402
+    MAX_RANGE,
+    NUM_BEAMS,
+    compile_seconds,
+    report_end,
+    report_head,
+    rows_of,
+    step_geometry,
+    throughput,
+)
 
 from fedjax_nav.env import NavEnv, make_params  # noqa: E402
 from fedjax_nav.worlds import procedural, rooms, suites  # noqa: E402
@@ -98,15 +106,8 @@ def main(argv=None):
     bad = [f for f in families if f not in rooms.FAMILIES]
     if bad:
         ap.error(f"--families: {bad[0]!r} is not a family ({', '.join(rooms.FAMILIES)})")
-    cmd = " ".join(argv if argv is not None else sys.argv[1:])
-    out = [f"Command: `python scripts/bench_dense_families.py {cmd}`".rstrip(), "", f"Machine: {machine()}", ""]
-    out += bench(families, a.robots, a.envs, a.steps, a.repeats)
-    out.append(f"\nLoad average after: {os.getloadavg()[0]:.2f}")
-    text = "\n".join(out)
-    print(text)
-    if a.record:
-        with open(a.record, "a") as fh:
-            fh.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `scripts/bench_dense_families.py`\n\n{text}\n")
+    out = report_head("bench_dense_families.py", argv) + bench(families, a.robots, a.envs, a.steps, a.repeats)
+    report_end(out, "bench_dense_families.py", a.record)
 
 
 if __name__ == "__main__":

@@ -5,15 +5,12 @@ interpreter that calls no shim: tests/test_registration.py."""
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
-import textwrap
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_registration import fresh_python
 
 from fedjax_nav.env import brax_compat
 from fedjax_nav.worlds import World, from_dict, load, stack
@@ -98,8 +95,7 @@ def test_ensure_installs_only_if_missing(monkeypatch):
 
 def test_shim_on_two_devices_feeds_pmap():
     """Two forced CPU devices (needs a fresh process): slice i lives on device i."""
-    code = textwrap.dedent(
-        """
+    code = """
         import jax, jax.numpy as jnp, numpy as np
         from fedjax_nav.env.brax_compat import device_put_replicated
         devs = jax.local_devices()
@@ -117,9 +113,7 @@ def test_shim_on_two_devices_feeds_pmap():
         np.testing.assert_array_equal(np.asarray(y), np.stack([np.arange(3.0) + 5] * 2))
         print("ok")
         """
-    )
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    res = fresh_python(code, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     assert res.returncode == 0 and "ok" in res.stdout, res.stderr[-2000:]
 
 
@@ -128,7 +122,7 @@ def test_package_does_not_import_brax():
         "import sys, fedjax_nav, fedjax_nav.env, fedjax_nav.worlds, fedjax_nav.env.brax_compat\n"
         "assert not any(m == 'brax' or m.startswith('brax.') for m in sys.modules), 'brax imported'\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    res = fresh_python(code)
     assert res.returncode == 0, res.stderr[-2000:]
 
 
@@ -292,13 +286,7 @@ def test_importing_the_adapter_prints_nothing():
     """mjx's two "Failed to import warp" lines are swallowed (in a fresh interpreter, where brax
     is imported for the first time)."""
     code = "import fedjax_nav.env.brax_env, brax.envs\nbrax.envs.get_environment('fedjax_nav')\n"
-    res = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
+    res = fresh_python(code)
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout == "", res.stdout
 

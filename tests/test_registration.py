@@ -15,6 +15,19 @@ import warnings
 import numpy as np
 import pytest
 
+
+def fresh_python(code: str, timeout: float = 120, **env: str) -> subprocess.CompletedProcess:
+    """`code` (dedented) in a fresh interpreter on CPU JAX, its stdout and stderr captured as text;
+    `env`: more environment variables. tests/test_brax.py uses it too."""
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, "JAX_PLATFORMS": "cpu", **env},
+    )
+
+
 # ----------------------------------------------------------------------------- gymnasium
 
 
@@ -70,8 +83,7 @@ def test_gymnasium_check_env_on_the_made_env(gym):
 def test_make_without_importing_fedjax_nav_first():
     """gymnasium >= 1.0 has no plugin entry points; "module:id" imports the module that registers."""
     pytest.importorskip("gymnasium")
-    code = textwrap.dedent(
-        """
+    code = """
         import sys, gymnasium
         assert "fedjax_nav" not in sys.modules
         env = gymnasium.make("fedjax_nav.env.gym_env:fedjax_nav/Nav-v0", world="train-3", episode_length=4)
@@ -79,14 +91,7 @@ def test_make_without_importing_fedjax_nav_first():
         env.reset(seed=0)
         print("OK")
         """
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
+    out = fresh_python(code, timeout=300)
     assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
 
 
@@ -236,13 +241,7 @@ def test_brax_ppo_and_sac_train_the_registered_env_as_they_are():
     `envs.get_environment("fedjax_nav")` in a clean interpreter that calls no shim: importing
     the adapter (to register it) is all. Its stdout is the one JSON line (no warp noise)."""
     pytest.importorskip("brax")
-    out = subprocess.run(
-        [sys.executable, "-c", _BRAX_TRAIN],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
+    out = fresh_python(_BRAX_TRAIN, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     lines = out.stdout.strip().splitlines()
     assert len(lines) == 1, out.stdout

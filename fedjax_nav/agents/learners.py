@@ -164,10 +164,15 @@ def _td3_hp(hp) -> td3.HParams:
     return td3.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["td3.tau"], hp["td3.policy_noise"], hp["td3.noise_clip"])
 
 
+def _one_step_batch(sample, key, hp):
+    """(a fresh batch of 1-step rows, the key left for the update)."""
+    k_batch, k_step = jax.random.split(key)
+    return one_step(sample(k_batch), hp["ddpg.gamma"]), k_step
+
+
 def _td3_step(nets, state, sample, key, hp, i):
-    k_batch, k_noise = jax.random.split(key)
+    batch, k_noise = _one_step_batch(sample, key, hp)
     actor_step = i % hp["td3.policy_delay"] == 0  # the policy delay, from the unbatched step counter
-    batch = one_step(sample(k_batch), hp["ddpg.gamma"])
     return td3.update(nets, state, batch, k_noise, _td3_hp(hp), actor_step)
 
 
@@ -176,8 +181,8 @@ def _sac_hp(hp) -> sac.HParams:
 
 
 def _sac_step(nets, state, sample, key, hp, i):
-    k_batch, k_step = jax.random.split(key)
-    return sac.update(nets, state, one_step(sample(k_batch), hp["ddpg.gamma"]), k_step, _sac_hp(hp))
+    batch, k_step = _one_step_batch(sample, key, hp)
+    return sac.update(nets, state, batch, k_step, _sac_hp(hp))
 
 
 def _no_memory(nets):
@@ -214,51 +219,61 @@ def _ddpg_targets_due(nets, g, rows: int, hp):
     return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.target_every"] == 0)
 
 
-_OFF = {"memory": _no_memory, "policy": _actor, "storage": _replay, "store": _store_replay, "due": _due_replay}
+def _replay_learner(name: str, actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
+    """An off-policy learner: `actor_cls` and the critic at the ddpg.* network sizes, replay rows
+    (`_replay`, `_store_replay`, `_due_replay`), `gradient_steps` calls of `grad_step` per update
+    event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
+    explore, shared_fields, target_fields; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
+    metrics = fields.pop("metrics", OFF_POLICY_METRICS)
+    return Learner(
+        name=name,
+        on_policy=False,
+        metrics=metrics,
+        make_nets=_off_policy_nets(actor_cls),
+        memory=_no_memory,
+        policy=_actor,
+        greedy=_stateless(greedy),
+        storage=_replay,
+        store=_store_replay,
+        due=_due_replay,
+        update=_replay_update(grad_step, metrics),
+        **fields,
+    )
 
-DDPG = Learner(
-    name="ddpg",
-    on_policy=False,
-    metrics=OFF_POLICY_METRICS,
-    make_nets=_off_policy_nets(ddpg.Actor),
+
+DDPG = _replay_learner(
+    "ddpg",
+    ddpg.Actor,
+    _ddpg_step,
+    ddpg.act,
     init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
     explore=_ddpg_explore,
-    greedy=_stateless(ddpg.act),
-    update=_replay_update(_ddpg_step, OFF_POLICY_METRICS),
     shared_fields=("actor", "critic"),
     target_fields=("actor_targ", "critic_targ"),
     targets_due=_ddpg_targets_due,
     targets=lambda nets, state, hp: ddpg.update_targets(state, hp["ddpg.rho"]),
-    **_OFF,
 )
-
-TD3 = Learner(
-    name="td3",
-    on_policy=False,
-    metrics=OFF_POLICY_METRICS,
-    make_nets=_off_policy_nets(ddpg.Actor),
+TD3 = _replay_learner(
+    "td3",
+    ddpg.Actor,
+    _td3_step,
+    td3.greedy,
     init=lambda nets, key, obs_size, hp: td3.init(nets, key, obs_size),
     explore=_td3_explore,
-    greedy=_stateless(td3.greedy),
-    update=_replay_update(_td3_step, OFF_POLICY_METRICS),
     shared_fields=td3.SHARED,
     target_fields=td3.TARGETS,
-    **_OFF,
 )
-
 SAC_METRICS = (*OFF_POLICY_METRICS, "alpha", "entropy")
-SAC = Learner(
-    name="sac",
-    on_policy=False,
-    metrics=SAC_METRICS,
-    make_nets=_off_policy_nets(SquashedGaussianActor),
+SAC = _replay_learner(
+    "sac",
+    SquashedGaussianActor,
+    _sac_step,
+    sac.greedy,
     init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp["sac.init_alpha"]),
     explore=_sac_explore,
-    greedy=_stateless(sac.greedy),
-    update=_replay_update(_sac_step, SAC_METRICS),
     shared_fields=sac.SHARED,
     target_fields=sac.TARGETS,
-    **_OFF,
+    metrics=SAC_METRICS,
 )
 
 PPO = Learner(

@@ -1,5 +1,7 @@
 """What TD3 and SAC learn from: a batch whose rows carry their own discount, and the helpers that
-build it from the replay buffer's 1-step transitions (one step, or an n-step window).
+build it from the replay buffer's 1-step transitions (one step, or an n-step window); then what the
+two share beside it: the modules (an actor and twin critics), their initialisation, the bootstrapped
+target, the twin critics' Adam step and the soft target update.
 
     target = reward + discount * (1 - done) * V(next_obs)          (V: the learner's bootstrap)
 
@@ -12,11 +14,18 @@ sweep over gamma or n needs nothing stored differently.
 
 from __future__ import annotations
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import optax
 from flax import struct
 
 from fedjax_nav.agents.buffer import Transition
+from fedjax_nav.agents.networks import Critic
+from fedjax_nav.agents.networks_extra import twin_apply, twin_init
+
+# Adam without its learning rate: `adam_step` applies a traced one (a sweep over it compiles once).
+ADAM = optax.scale_by_adam()
 
 
 @struct.dataclass
@@ -58,6 +67,52 @@ def nstep(window: Transition, end: jax.Array, gamma) -> Batch:
         done=window.done[last],
         discount=gamma ** k.astype(jnp.float32),
     )
+
+
+@struct.dataclass
+class TwinNets:
+    """TD3's and SAC's modules (static): the actor and ONE of the twin critics, whose parameters
+    are stacked on a leading axis of 2 (`networks_extra.twin_init`)."""
+
+    actor: nn.Module = struct.field(pytree_node=False)
+    critic: Critic = struct.field(pytree_node=False)  # one of the twins
+
+
+def init_twin(nets, key: jax.Array, obs_size: int, action_size: int = 2) -> tuple[dict, dict]:
+    """(actor parameters, the twin critics' parameters [2, ...]) from one key (split in two)."""
+    ka, kc = jax.random.split(key)
+    obs, act = jnp.zeros((obs_size,)), jnp.zeros((action_size,))
+    return nets.actor.init(ka, obs), twin_init(nets.critic, kc, obs, act)
+
+
+def copy(tree):
+    """A copy of a pytree of arrays: a target starts as its online network's copy, not the same
+    buffers (jit may donate the state)."""
+    return jax.tree.map(jnp.copy, tree)
+
+
+def min_q(critic: Critic, critics: dict, obs: jax.Array, action: jax.Array) -> jax.Array:
+    """min_j Q_j(obs, action) over the twins, f32[B]."""
+    return jnp.min(twin_apply(critic, critics, obs, action), axis=0)
+
+
+def td_target(batch: Batch, v_next: jax.Array) -> jax.Array:
+    """y = reward + discount (1 - done) v_next, f32[B], with no gradient through it; v_next is the
+    learner's bootstrap (TD3: the twins' min; SAC: minus alpha log pi too)."""
+    return jax.lax.stop_gradient(batch.reward + batch.discount * (1.0 - batch.done) * v_next)
+
+
+def critic_step(critic: Critic, critics: dict, opt_state, batch: Batch, y: jax.Array, lr):
+    """One Adam step of both critics on sum_j mean (Q_j(s, a) - y)^2. Returns (critics, opt_state,
+    the loss f32[], Q f32[2, B] before the step)."""
+
+    def loss(p):
+        q = twin_apply(critic, p, batch.obs, batch.action)  # [2, B]
+        return jnp.sum(jnp.mean((q - y) ** 2, axis=-1)), q
+
+    (c_loss, q), grads = jax.value_and_grad(loss, has_aux=True)(critics)
+    critics, opt_state = adam_step(ADAM, critics, grads, opt_state, lr)
+    return critics, opt_state, c_loss, q
 
 
 def soft_update(target, online, tau):

@@ -29,18 +29,22 @@ from flax import struct
 
 from fedjax_nav.agents import distributions as dist
 from fedjax_nav.agents.networks import Critic
-from fedjax_nav.agents.networks_extra import SquashedGaussianActor, twin_apply, twin_init
-from fedjax_nav.agents.offpolicy import Batch, adam_step, soft_update
+from fedjax_nav.agents.networks_extra import SquashedGaussianActor
+from fedjax_nav.agents.offpolicy import (
+    ADAM,
+    Batch,
+    adam_step,
+    copy,
+    critic_step,
+    init_twin,
+    min_q,
+    soft_update,
+    td_target,
+)
+from fedjax_nav.agents.offpolicy import TwinNets as Nets
 
 SHARED = ("actor", "critics", "log_alpha")
 TARGETS = ("critics_targ",)
-_ADAM = optax.scale_by_adam()
-
-
-@struct.dataclass
-class Nets:
-    actor: SquashedGaussianActor = struct.field(pytree_node=False)
-    critic: Critic = struct.field(pytree_node=False)  # one of the twins
 
 
 @struct.dataclass
@@ -71,19 +75,16 @@ def make_nets(hidden: int = 64, depth: int = 2, activation: str = "relu", action
 
 def init(nets: Nets, key: jax.Array, obs_size: int, init_alpha=1.0, action_size: int = 2) -> State:
     """init_alpha: the initial temperature (traced)."""
-    ka, kc = jax.random.split(key)
-    obs, act = jnp.zeros((obs_size,)), jnp.zeros((action_size,))
-    actor = nets.actor.init(ka, obs)
-    critics = twin_init(nets.critic, kc, obs, act)
+    actor, critics = init_twin(nets, key, obs_size, action_size)
     log_alpha = jnp.log(jnp.asarray(init_alpha, jnp.float32))
     return State(
         actor=actor,
         critics=critics,
-        critics_targ=jax.tree.map(jnp.copy, critics),  # a copy: jit may donate the state
+        critics_targ=copy(critics),
         log_alpha=log_alpha,
-        actor_opt=_ADAM.init(actor),
-        critic_opt=_ADAM.init(critics),
-        alpha_opt=_ADAM.init(log_alpha),
+        actor_opt=ADAM.init(actor),
+        critic_opt=ADAM.init(critics),
+        alpha_opt=ADAM.init(log_alpha),
     )
 
 
@@ -112,9 +113,8 @@ def alpha_loss(log_alpha: jax.Array, log_prob: jax.Array, target_entropy) -> jax
 def target(nets: Nets, state: State, batch: Batch, key: jax.Array) -> jax.Array:
     """The critics' soft target y f32[B], with the current actor and temperature (no gradient)."""
     a_next, logp_next = _sample(nets, state.actor, batch.next_obs, key)
-    q_next = twin_apply(nets.critic, state.critics_targ, batch.next_obs, a_next)
-    v_next = jnp.min(q_next, axis=0) - jnp.exp(state.log_alpha) * logp_next
-    return jax.lax.stop_gradient(batch.reward + batch.discount * (1.0 - batch.done) * v_next)
+    v_next = min_q(nets.critic, state.critics_targ, batch.next_obs, a_next) - jnp.exp(state.log_alpha) * logp_next
+    return td_target(batch, v_next)
 
 
 def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> tuple[State, dict]:
@@ -125,23 +125,18 @@ def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) 
     alpha = jnp.exp(state.log_alpha)
     y = target(nets, state, batch, k_target)
 
-    def critic_loss(p):
-        q = twin_apply(nets.critic, p, batch.obs, batch.action)
-        return jnp.sum(jnp.mean((q - y) ** 2, axis=-1)), q
-
-    (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critics)
-    critics, critic_opt = adam_step(_ADAM, state.critics, c_grads, state.critic_opt, hp.critic_lr)
+    critics, critic_opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.critic_lr)
 
     def actor_loss(p):
         a, logp = _sample(nets, p, batch.obs, k_actor)
-        q_pi = jnp.min(twin_apply(nets.critic, critics, batch.obs, a), axis=0)
+        q_pi = min_q(nets.critic, critics, batch.obs, a)
         return jnp.mean(alpha * logp - q_pi), logp
 
     (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(state.actor)
-    actor, actor_opt = adam_step(_ADAM, state.actor, a_grads, state.actor_opt, hp.actor_lr)
+    actor, actor_opt = adam_step(ADAM, state.actor, a_grads, state.actor_opt, hp.actor_lr)
 
     t_loss, t_grad = jax.value_and_grad(alpha_loss)(state.log_alpha, logp, hp.target_entropy)
-    log_alpha, alpha_opt = adam_step(_ADAM, state.log_alpha, t_grad, state.alpha_opt, hp.alpha_lr)
+    log_alpha, alpha_opt = adam_step(ADAM, state.log_alpha, t_grad, state.alpha_opt, hp.alpha_lr)
 
     state = State(
         actor=actor,

@@ -28,18 +28,21 @@ from flax import struct
 
 from fedjax_nav.agents import distributions as dist
 from fedjax_nav.agents.networks import Actor, Critic
-from fedjax_nav.agents.networks_extra import twin_apply, twin_init
-from fedjax_nav.agents.offpolicy import Batch, adam_step, soft_update
+from fedjax_nav.agents.offpolicy import (
+    ADAM,
+    Batch,
+    adam_step,
+    copy,
+    critic_step,
+    init_twin,
+    min_q,
+    soft_update,
+    td_target,
+)
+from fedjax_nav.agents.offpolicy import TwinNets as Nets
 
 SHARED = ("actor", "critics")
 TARGETS = ("actor_targ", "critics_targ")
-_ADAM = optax.scale_by_adam()
-
-
-@struct.dataclass
-class Nets:
-    actor: Actor = struct.field(pytree_node=False)
-    critic: Critic = struct.field(pytree_node=False)  # one of the twins
 
 
 @struct.dataclass
@@ -64,16 +67,13 @@ class HParams:
 
 
 def make_nets(hidden: int = 64, depth: int = 3, activation: str = "relu") -> Nets:
+    """DDPG's actor (networks.Actor) and one of the twin critics."""
     return Nets(Actor(hidden, depth, activation), Critic(hidden, depth, activation))
 
 
 def init(nets: Nets, key: jax.Array, obs_size: int, action_size: int = 2) -> State:
-    ka, kc = jax.random.split(key)
-    obs, act = jnp.zeros((obs_size,)), jnp.zeros((action_size,))
-    actor = nets.actor.init(ka, obs)
-    critics = twin_init(nets.critic, kc, obs, act)
-    copy = lambda t: jax.tree.map(jnp.copy, t)  # targets are copies: jit may donate the state
-    return State(actor, critics, copy(actor), copy(critics), _ADAM.init(actor), _ADAM.init(critics))
+    actor, critics = init_twin(nets, key, obs_size, action_size)
+    return State(actor, critics, copy(actor), copy(critics), ADAM.init(actor), ADAM.init(critics))
 
 
 def greedy(nets: Nets, actor_params: dict, obs: jax.Array) -> jax.Array:
@@ -98,29 +98,18 @@ def target_action(mu_next: jax.Array, noise: jax.Array, policy_noise, noise_clip
     return jnp.clip(mu_next + eps * half, dist.ACTION_LOW, dist.ACTION_HIGH)
 
 
-def bootstrap_target(q_next: jax.Array, batch: Batch) -> jax.Array:
-    """y = r + discount (1 - done) min_j q_next[j]; q_next f32[2, B]."""
-    return batch.reward + batch.discount * (1.0 - batch.done) * jnp.min(q_next, axis=0)
-
-
 def target(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> jax.Array:
-    """The critics' regression target y f32[B] (no gradient flows through it)."""
+    """The critics' regression target y = r + discount (1 - done) min_j Q_targ_j(s', a'), f32[B]
+    (no gradient flows through it)."""
     mu_next = nets.actor.apply(state.actor_targ, batch.next_obs)
     a_next = target_action(mu_next, jax.random.normal(key, mu_next.shape), hp.policy_noise, hp.noise_clip)
-    q_next = twin_apply(nets.critic, state.critics_targ, batch.next_obs, a_next)
-    return jax.lax.stop_gradient(bootstrap_target(q_next, batch))
+    return td_target(batch, min_q(nets.critic, state.critics_targ, batch.next_obs, a_next))
 
 
 def update_critic(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> tuple[State, dict]:
     """One Adam step of both critics towards the smoothed twin target."""
     y = target(nets, state, batch, key, hp)
-
-    def loss(p):
-        q = twin_apply(nets.critic, p, batch.obs, batch.action)  # [2, B]
-        return jnp.sum(jnp.mean((q - y) ** 2, axis=-1)), q
-
-    (c_loss, q), grads = jax.value_and_grad(loss, has_aux=True)(state.critics)
-    critics, opt = adam_step(_ADAM, state.critics, grads, state.critic_opt, hp.critic_lr)
+    critics, opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.critic_lr)
     return state.replace(critics=critics, critic_opt=opt), {"critic_loss": c_loss, "q": jnp.mean(q)}
 
 
@@ -133,7 +122,7 @@ def update_actor(nets: Nets, state: State, batch: Batch, hp: HParams) -> tuple[S
         return -jnp.mean(q1)
 
     a_loss, grads = jax.value_and_grad(loss)(state.actor)
-    actor, opt = adam_step(_ADAM, state.actor, grads, state.actor_opt, hp.actor_lr)
+    actor, opt = adam_step(ADAM, state.actor, grads, state.actor_opt, hp.actor_lr)
     state = update_targets(state.replace(actor=actor, actor_opt=opt), hp.tau)
     return state, {"actor_loss": a_loss}
 

@@ -37,7 +37,7 @@ from fedjax_nav.worlds.suites import train_room_key
 PLACEMENTS = ("world", "random")
 ROOMS = ("world", "procedural")
 EPISODE_TAG = 0x6570  # fold_in tag of a reset's room / placement draws (the start key stays what it was)
-# Random placement, as fedjax_nav.training.rooms (tests/test_gym.py checks that the two agree).
+# Random placement: `place` below, also training's `env.placement: random` (fedjax_nav.training.rooms).
 PLACEMENT_TRIES = 64  # candidates per start / goal
 PLACEMENT_MARGIN = 0.05  # m over D_c that a random start or goal keeps from every obstacle
 MIN_START_GOAL = 1.0  # m, best effort: the first candidate goal this far from the start
@@ -118,8 +118,8 @@ def place(world: World, key: jax.Array) -> World:
     """One room with a random start pose and goal in its free space: each the first of
     PLACEMENT_TRIES uniform candidates that keeps D_c + PLACEMENT_MARGIN from every obstacle
     (the goal also at least MIN_START_GOAL m from the start, best effort); if none fits, the
-    room's own start 0 / goal 0. Every start / goal row becomes the drawn one. The same draw as
-    `fedjax_nav.training.rooms.place` (which this layer cannot import)."""
+    room's own start 0 / goal 0. Every start / goal row becomes the drawn one. Training's random
+    placement (`fedjax_nav.training.rooms`) is this function, so the two draw the same rooms."""
     c = worlds.CLEARANCE + PLACEMENT_MARGIN
     k_s, k_g, k_yaw = jax.random.split(key, 3)
     half = jnp.maximum(world.size / 2 - c, 0.0)

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav import worlds
-from fedjax_nav.env.geometry import nearest_distance
+from fedjax_nav.env.gym_task import place  # random placement: the gymnasium adapters' own draw
 from fedjax_nav.worlds import World, WorldError
 from fedjax_nav.worlds.procedural import generate
 from fedjax_nav.worlds.rooms import make_spec, parse_overrides
@@ -39,9 +39,6 @@ from fedjax_nav.worlds.suites import common_shape, padded_spec, train_room_key
 
 FIXED = "fixed"
 ROOM_STREAM = 0x8007  # fold_in tag: the seed's room stream and placement draws (the run's key stream is untouched)
-PLACEMENT_TRIES = 64  # candidates per start / goal of random placement
-PLACEMENT_MARGIN = 0.05  # m over D_c that a random start or goal keeps from every obstacle
-MIN_START_GOAL = 1.0  # m, best effort: the first candidate goal this far from the start
 
 
 def parse_room_spec(text: str) -> dict:
@@ -135,33 +132,3 @@ def density(hp, ep) -> jax.Array:
     start = jnp.asarray(hp["env.room_density_start"], jnp.float32)
     ramp = start + (1.0 - start) * jnp.minimum(jnp.asarray(ep, jnp.float32) / jnp.maximum(n, 1), 1.0)
     return jnp.where(n > 0, ramp, jnp.float32(1.0))
-
-
-def place(world: World, key: jax.Array) -> World:
-    """One room with a random start pose and goal in its free space: each the first of
-    PLACEMENT_TRIES uniform candidates that keeps D_c + PLACEMENT_MARGIN from every obstacle
-    (the goal also at least MIN_START_GOAL m from the start, best effort); if none fits, the
-    room's own start 0 / goal 0. Every start / goal row becomes the drawn one."""
-    c = worlds.CLEARANCE + PLACEMENT_MARGIN
-    k_s, k_g, k_yaw = jax.random.split(key, 3)
-    half = jnp.maximum(world.size / 2 - c, 0.0)
-
-    def candidates(k):
-        p = jax.random.uniform(k, (PLACEMENT_TRIES, 2), minval=-1.0, maxval=1.0) * half
-        d = jax.vmap(lambda q: nearest_distance(world.segments, q, world.circles))(p)
-        return p, d > c
-
-    ps, ok_s = candidates(k_s)
-    start_xy = jnp.where(jnp.any(ok_s), ps[jnp.argmax(ok_s)], world.starts[0, :2])
-    pg, ok_g = candidates(k_g)
-    far = ok_g & (jnp.linalg.norm(pg - start_xy, axis=-1) >= MIN_START_GOAL)
-    pick = jnp.where(jnp.any(far), jnp.argmax(far), jnp.argmax(ok_g))
-    goal = jnp.where(jnp.any(ok_g), pg[pick], world.goals[0])
-    yaw = jax.random.uniform(k_yaw, (), minval=-jnp.pi, maxval=jnp.pi)
-    start = jnp.where(jnp.any(ok_s), jnp.concatenate([start_xy, yaw[None]]), world.starts[0])
-    return world.replace(
-        starts=jnp.broadcast_to(start, world.starts.shape),
-        num_starts=jnp.int32(1),
-        goals=jnp.broadcast_to(goal, world.goals.shape),
-        num_goals=jnp.int32(1),
-    )

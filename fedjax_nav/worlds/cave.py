@@ -30,13 +30,10 @@ from fedjax_nav.worlds.layout import (
     assemble,
     common_info,
     compact,
-    endpoints,
     grid_runs,
-    in_core,
-    nearest,
     room_size,
     thin_by_rank,
-    trail_network,
+    trails,
 )
 from fedjax_nav.worlds.rooms import RoomSpec, cave_grid
 from fedjax_nav.worlds.sampling import Uniforms, all_clear, seg_aabb_sq
@@ -85,16 +82,7 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     ny = jnp.clip(jnp.floor(H / s), 1, NY).astype(jnp.int32)
     sx, sy = W / nx, H / ny
     fill = rng.uniform((), spec.cave_fill_min, spec.cave_fill_max)
-    pts, ta, tb = trail_network(rng, W, H, c, spec.trail_points)
-
-    def sample(u):
-        p = in_core(u, W, H, c)
-        return p, nearest(p, pts)
-
-    ep = endpoints(rng, spec, sample, 2)
-    ca, cb, con = ep.connectors()
-    res_a, res_b = jnp.concatenate([ta, ca]), jnp.concatenate([tb, cb])
-    res_on = jnp.concatenate([jnp.ones(ta.shape[0], bool), con])
+    pts, ep, res_a, res_b, res_on = trails(rng, spec, W, H, c)
 
     gx, gy = jnp.meshgrid(jnp.arange(NX, dtype=jnp.float32), jnp.arange(NY, dtype=jnp.float32))
     valid = (gx < nx) & (gy < ny)

@@ -23,12 +23,9 @@ import jax.numpy as jnp
 from fedjax_nav.worlds.layout import (
     assemble,
     common_info,
-    endpoints,
-    in_core,
-    nearest,
     room_size,
     thin_count,
-    trail_network,
+    trails,
 )
 from fedjax_nav.worlds.rooms import RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, all_clear, first_true, pt_seg_sq, take_rows
@@ -44,16 +41,7 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     c = spec.clearance
     W, H = room_size(rng, spec)
     n_req = rng.randint(spec.trees_min, spec.trees_max)
-    pts, ta, tb = trail_network(rng, W, H, c, spec.trail_points)
-
-    def sample(u):
-        p = in_core(u, W, H, c)
-        return p, nearest(p, pts)
-
-    ep = endpoints(rng, spec, sample, 2)
-    ca, cb, con = ep.connectors()
-    res_a, res_b = jnp.concatenate([ta, ca]), jnp.concatenate([tb, cb])
-    res_on = jnp.concatenate([jnp.ones(ta.shape[0], bool), con])
+    pts, ep, res_a, res_b, res_on = trails(rng, spec, W, H, c)
 
     N, T, L = spec.trees_max, spec.tries, _cell_slots(spec.trees_max)
     n = jnp.maximum(n_req, 1).astype(jnp.float32)

@@ -102,6 +102,24 @@ def nearest(p, pts):
     return pts[jnp.argmin(jnp.sum((p[..., None, :] - pts) ** 2, -1), -1)]
 
 
+def trails(rng: Uniforms, spec: RoomSpec, W, H, c: float):
+    """The clear network of the forest and cave families: the trail network (`trail_network` of
+    `spec.trail_points` waypoints), then the goals and starts uniform in the room shrunk by c, each
+    with a connector to its nearest waypoint (`endpoints`). Returns (waypoints f32[k, 2], the
+    Endpoints, the network's segments a, b f32[n, 2] and on bool[n]: the trails, then the connectors)."""
+    pts, ta, tb = trail_network(rng, W, H, c, spec.trail_points)
+
+    def sample(u):
+        p = in_core(u, W, H, c)
+        return p, nearest(p, pts)
+
+    ep = endpoints(rng, spec, sample, 2)
+    ca, cb, con = ep.connectors()
+    res_a, res_b = jnp.concatenate([ta, ca]), jnp.concatenate([tb, cb])
+    res_on = jnp.concatenate([jnp.ones(ta.shape[0], bool), con])
+    return pts, ep, res_a, res_b, res_on
+
+
 def thin_count(n, density) -> jax.Array:
     """floor(density * n), density in [0, 1] (traced): exactly n at density 1."""
     return jnp.clip(jnp.floor(jnp.asarray(density, jnp.float32) * n), 0, n).astype(jnp.int32)
