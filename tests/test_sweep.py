@@ -68,8 +68,11 @@ def test_every_shipped_sweep_loads(path):
     assert len(set(ids)) == len(ids), "two grid points resolve to the same config"
     labels = [p.label for p in s.points]
     assert len(set(labels)) == len(labels), "two grid points share a label (tables and curves group by it)"
+    spec = yaml.safe_load(path.read_text())
     for p in s.points:
-        episodes = p.values.get("run.episodes", 125)  # the thesis's budget unless swept
+        base = yaml.safe_load((path.parent / str(p.values.get("base", spec.get("base")))).read_text())
+        # the base config's budget (the thesis's 125 unless it says otherwise) unless swept
+        episodes = p.values.get("run.episodes", base.get("run", {}).get("episodes", 125))
         assert p.cfg.run.seeds == s.seeds and p.cfg.run.episodes == episodes and p.cfg.env.episode_length == 1024
         for k, v in p.values.items():
             if k != "base":
@@ -115,8 +118,8 @@ def test_plan_allocates_the_largest_buffer_and_packs_to_the_budget():
     jobs = sw.merge_jobs(buf.points)
     (g,) = sw.plan(jobs, budget=2**40)
     assert g.trainer.cfg.buffer_rows == 70000 and len(g.batches) == 1 and g.batch_rows == 20
-    per_row = sw.row_bytes(g.trainer) * sw.STATE_BYTES_FACTOR
-    (g2,) = sw.plan(jobs, budget=9 * per_row)  # 9 rows fit: points of 4 seeds pack 2 per batch
+    per_row, once = sw.point_bytes(g.trainer)
+    (g2,) = sw.plan(jobs, budget=9 * per_row + once)  # 9 rows fit: points of 4 seeds pack 2 per batch
     assert [len(b) for b in g2.batches] == [2, 2, 1] and g2.batch_rows == 8
     with pytest.raises(sf.SweepError, match="memory budget"):
         sw.plan(jobs, budget=per_row)
@@ -225,8 +228,8 @@ def test_a_killed_sweep_resumes_without_recomputing_finished_points(tiny, tmp_pa
     batch 2, from the checkpoint, and every number equals the uninterrupted sweep's."""
     sweep = sf.load_sweep(write_sweep(tiny["folder"], "tiny-kill", set=TINY_SET + ["run.checkpoint_every=1"]))
     assert [p.id for p in sweep.points] == [p.id for p in tiny["sweep"].points]
-    per_row = sw.row_bytes(sw.plan(sw.merge_jobs(sweep.points), 2**40)[0].trainer) * sw.STATE_BYTES_FACTOR
-    budget = 6 * per_row  # 3 points of 2 seeds per batch: 2 batches
+    per_row, once = sw.point_bytes(sw.plan(sw.merge_jobs(sweep.points), 2**40)[0].trainer)
+    budget = 6 * per_row + once  # 3 points of 2 seeds per batch: 2 batches
     out = tmp_path / "killed"
 
     calls = []

@@ -6,8 +6,9 @@ checked before allocating").
 
 `fedjax_nav.training.resources` (train) and `fedjax_nav.evaluation.rollout` (evaluate) each
 estimate their peak bytes from shapes before allocating anything and refuse with one line when
-`over_budget` says so. It sits in the config layer, beside `config.envs`, because both build on it
-and evaluation does not import training.
+`over_budget` says so; a sweep (`fedjax_nav.training.sweep.plan`) packs its rows by train's estimate
+within half of `available_memory` (or --memory-budget). It sits in the config layer, beside
+`config.envs`, because both build on it and evaluation does not import training.
 """
 
 from __future__ import annotations

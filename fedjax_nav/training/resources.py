@@ -1,10 +1,10 @@
 """Resource checks before a run allocates anything: the memory its state will take, by part.
 
 `jax.eval_shape` of the trainer's `init` gives the exact bytes of one seed's `TrainState` without
-allocating it (as the sweeps' `row_bytes` does), and `activation_bytes` the batch and activations
-of one update of every network; `check_memory` refuses a run whose estimate exceeds the budget
-(`config.memory.over_budget`, the rule evaluation refuses by too), with one line naming the config
-field that dominates (docs/reliability.md).
+allocating it (the sweeps pack their batches by this estimate: `sweep.plan.point_bytes`), and
+`activation_bytes` the batch and activations of one update of every network; `check_memory`
+refuses a run whose estimate exceeds the budget (`config.memory.over_budget`, the rule evaluation
+refuses by too), with one line naming the config field that dominates (docs/reliability.md).
 """
 
 from __future__ import annotations

@@ -4,41 +4,33 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
-import jax
 import numpy as np
 
+from fedjax_nav.config.memory import available_memory, size
 from fedjax_nav.config.sweepfile import SweepError
 from fedjax_nav.training.hparams import HParams, hparams_from_config, stack_hparams, varying_fields
-from fedjax_nav.training.sweep.spec import STATE_BYTES_FACTOR, Job, group_key
+from fedjax_nav.training.sweep.spec import Job, group_key
 from fedjax_nav.training.trainer import Trainer
 
 
-def row_bytes(trainer: Trainer) -> int:
-    """Bytes of one row's TrainState (replay buffers dominate)."""
-    hp = hparams_from_config(trainer.cfg)
-    shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
-    return int(
-        sum(
-            np.prod(x.shape) * x.dtype.itemsize
-            for x in jax.tree.leaves(shapes)
-            if hasattr(x, "dtype") and not jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
-        )
-    )
+def point_bytes(trainer: Trainer) -> tuple[int, int]:
+    """(bytes per row, bytes once per batch) of the group's program, from train's own estimate
+    (`training.resources.memory_estimate`, the one `train` refuses by): per row (seed) its
+    TrainState x STATE_BYTES_FACTOR, one update's batches and activations of every network and
+    its metrics tables; once, the worlds. A batch of n rows then needs n x per row + once, and a
+    point alone in its batch is refused exactly when `train` would refuse its config."""
+    from fedjax_nav.training.resources import memory_estimate  # resources imports sweep.spec: a cycle at the top
+
+    est = memory_estimate(trainer)
+    once = est["worlds"]
+    return (est["total"] - once) // trainer.cfg.run.seeds, once  # every other part is per seed
 
 
 def default_memory_budget() -> int:
-    """Half of the memory available now (Linux /proc/meminfo; else half of the physical memory)."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024 // 2
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+    """Half of the memory available now (`config.memory.available_memory`)."""
+    return available_memory() // 2
 
 
 @dataclass
@@ -63,15 +55,15 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
         rep = js[0].cfg
         rep = replace(rep, ddpg=replace(rep.ddpg, buffer_alloc=alloc))
         trainer = Trainer(rep)
-        per_row = row_bytes(trainer) * STATE_BYTES_FACTOR
-        cap = budget // max(per_row, 1)  # 0: not even one row fits (a single-seed point is checked too)
+        per_row, once = point_bytes(trainer)
+        cap = max(budget - once, 0) // max(per_row, 1)  # 0: not even one row fits (a single-seed point is checked too)
         batches, cur, rows = [], [], 0
         for j in js:
             n = j.cfg.run.seeds
             if n > cap:
                 raise SweepError(
-                    f"point {j.id} ({j.cfg.method}) needs {n} rows of ~{per_row / 2**20:.0f} MiB, more than the "
-                    f"memory budget {budget / 2**30:.2f} GiB allows ({cap} rows); "
+                    f"point {j.id} ({j.cfg.method}) needs {n} rows of ~{size(per_row)} (and {size(once)} of "
+                    f"worlds), more than the memory budget {size(budget)} allows ({cap} rows); "
                     "raise --memory-budget or use fewer seeds"
                 )
             if rows + n > cap:
