@@ -288,3 +288,20 @@ def test_recurrent_ppo_memory_probe_remembers_the_cue(rnn):
         _, h = ppo.greedy(nets, state, jnp.array([cue, 1.0, 0.0]), h, jnp.bool_(True))
         a, _ = ppo.greedy(nets, state, jnp.array([0.0, 0.0, 1.0]), h, jnp.bool_(False))
         np.testing.assert_allclose(np.asarray(a), [0.5, 0.6 * cue], atol=0.05)  # memoryless best: a1 = 0
+
+
+@pytest.mark.parametrize("shape", [(64, 64), (64, 2), (28, 64)])
+def test_the_orthogonal_init_is_jaxs_without_a_lapack_call(shape):
+    """The GRU's recurrent kernels and the policy head start orthogonal as flax's defaults do (the same
+    draw: the same matrix up to rounding), but the vmapped init lowers to no LAPACK QR, which hung
+    under load when several threads called scipy's OpenBLAS at once (docs/learners.md)."""
+    from fedjax_nav.agents.networks_extra import orthogonal
+
+    key = jax.random.key(3)
+    np.testing.assert_allclose(orthogonal(0.5)(key, shape), jax.nn.initializers.orthogonal(0.5)(key, shape), atol=1e-6)
+    q = np.asarray(orthogonal()(key, shape), np.float64)
+    small = q if shape[0] >= shape[1] else q.T
+    np.testing.assert_allclose(small.T @ small, np.eye(min(shape)), atol=1e-5)
+    keys = jax.random.split(key, 4)
+    hlo = jax.jit(jax.vmap(lambda k: orthogonal()(k, shape))).lower(keys).as_text().lower()
+    assert "lapack" not in hlo and "geqrf" not in hlo

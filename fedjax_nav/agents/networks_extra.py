@@ -26,9 +26,44 @@ import jax.numpy as jnp
 from fedjax_nav.agents.networks import ACTIVATIONS, Critic
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+def _gram_schmidt(z: jax.Array) -> jax.Array:
+    """f32[m, n] (m >= n, full rank) -> Q f32[m, n] with orthonormal columns and z = Q R, R upper
+    triangular with a positive diagonal: the Q of a QR decomposition with the sign of diag(R) fixed,
+    i.e. what `jax.random.orthogonal` returns. Classical Gram-Schmidt applied twice per column
+    ("twice is enough": orthogonal to rounding for the Gaussian matrices drawn here)."""
+    n = z.shape[1]
+
+    def column(j, q):
+        v = jax.lax.dynamic_index_in_dim(z, j, axis=1, keepdims=False)
+        earlier = jnp.arange(n) < j
+        for _ in range(2):
+            v = v - q @ jnp.where(earlier, q.T @ v, 0.0)
+        return q.at[:, j].set(v / jnp.sqrt(jnp.sum(v * v)))
+
+    return jax.lax.fori_loop(0, n, column, jnp.zeros_like(z))
+
+
+def orthogonal(scale: float = 1.0):
+    """`jax.nn.initializers.orthogonal(scale)` (a 2-D kernel; the same normal draw, so the same
+    matrix up to rounding) without a LAPACK QR. Written here because XLA CPU's batched QR calls the
+    multithreaded OpenBLAS of scipy from several threads at once, and on a loaded 2-core machine a
+    vmapped init (robots x seeds) ran for minutes or hung there (measured: `vmap` of 4 orthogonal
+    64 x 192 inits did not finish in 30 s; with `OPENBLAS_NUM_THREADS=1`, 1 s); this one is matmuls only."""
+
+    def init(key, shape, dtype=jnp.float32):
+        rows, cols = shape
+        z = jax.random.normal(key, (max(rows, cols), min(rows, cols)), dtype)
+        q = _gram_schmidt(z)
+        return scale * (q.T if rows < cols else q)
+
+    return init
+
+
 # The policy's last layer starts small (PureJaxRL's orthogonal(0.01)): the initial mean is ~0 for
 # every observation, i.e. the centre of the action box after the squash.
-_SMALL = nn.initializers.orthogonal(0.01)
+_SMALL = orthogonal(0.01)
 
 
 def _trunk(x: jax.Array, hidden: int, depth: int, activation: str) -> jax.Array:
@@ -96,7 +131,7 @@ class ScannedGRU(nn.Module):
     def __call__(self, h: jax.Array, inputs: tuple[jax.Array, jax.Array]):
         x, reset = inputs
         h = jnp.where(reset, jnp.zeros_like(h), h)
-        h, y = nn.GRUCell(self.features)(h, x)
+        h, y = nn.GRUCell(self.features, recurrent_kernel_init=orthogonal())(h, x)  # flax's default, LAPACK-free
         return h, y
 
 
