@@ -105,6 +105,13 @@ def test_set_random_values(key, raw):
         assert isinstance(cfg, config.Config)
 
 
+def test_a_set_key_with_a_newline_is_named_on_one_line():
+    """Found by test_set_random_values: the key was printed raw, so its newline split the error."""
+    with pytest.raises(ConfigError) as e:
+        config.load_config(None, ["0\n0=["])
+    assert "\n" not in str(e.value) and "'0\\n0'" in str(e.value)
+
+
 @SETTINGS
 @given(data=st.binary(max_size=200), suffix=st.sampled_from([".json", ".yaml"]))
 def test_world_loader_random_bytes(folder, data, suffix):
