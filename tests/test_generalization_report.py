@@ -70,6 +70,7 @@ def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
     assert t.loc["procedural (mixture)", "walls"] == pytest.approx(0.8)
     assert t.loc["procedural (mixture)", "cylinders_ci_seeds_high"] == pytest.approx(1.0)
     assert t.loc["thesis rooms", "train_success"] == pytest.approx(0.85)
+    assert list(t.learner) == ["ddpg", "ddpg"]  # a sweep over learners (configs/sweeps/learners.yaml) names each
     g = pd.read_csv(tmp_path / "generalization_goal.csv")
     assert len(g) == 1 and g.rooms[0] == "procedural (mixture)"  # the goal concerns procedural training
     assert g.worst_family[0] == "walls" and not g.goal_reached[0]  # 0.80 < 0.85

@@ -54,6 +54,7 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             "point": p.id,
             "label": p.label,
             "method": p.cfg.method,
+            "learner": p.cfg.learner,
             "rooms": rooms(p.cfg),
             "episodes": p.cfg.run.episodes,
             "seeds": s["seeds"],
@@ -89,7 +90,8 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
         if eps.exists():
             fams = pd.read_csv(eps).groupby(["seed", "family"])["success"].mean().unstack()
         for seed, train in enumerate(s["success_last_per_seed"]):
-            row = {"point": p.id, "label": p.label, "method": p.cfg.method, "rooms": rooms(p.cfg)}
+            row = {"point": p.id, "label": p.label, "method": p.cfg.method, "learner": p.cfg.learner}
+            row["rooms"] = rooms(p.cfg)
             row["episodes"] = p.cfg.run.episodes
             row.update(seed=seed, train_success=train, arena=arena.get(str(seed), np.nan))
             if fams is not None and seed in fams.index:
@@ -111,14 +113,15 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
 
     rows = []
     for _, r in t.iterrows():
-        row = {"method": r.method.upper(), "rooms": r.rooms, "episodes": int(r.episodes), "seeds": int(r.seeds)}
+        row = {"method": r.method.upper(), "learner": r.get("learner", "ddpg"), "rooms": r.rooms}
+        row |= {"episodes": int(r.episodes), "seeds": int(r.seeds)}
         row["label"] = r.get("label", "")
         row["training, last 25"] = pm(r.train_success, r.train_success_std)
         row["arena"] = pm(r.arena, r.arena_seed_std)
         row.update({f: ci(r, f) for f in [*families, "all"]})
         rows.append(row)
     out = pd.DataFrame(rows)
-    if len(t) and not t.duplicated(["method", "rooms", "episodes"]).any():
+    if len(t) and not t.duplicated(["method", "learner", "rooms", "episodes"]).any():
         out = out.drop(columns="label")  # the other columns name every point
     return out
 
