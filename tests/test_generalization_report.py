@@ -61,6 +61,11 @@ def _write(folder, train, arena_per_seed, family_per_seed):
 def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
     fixed, proc = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
     _write(tmp_path / "points" / fixed.id, [0.9, 0.8], [0.5, 0.3], {f: [0.6, 0.4] for f in FAMILIES})
+    # episodes 0-99 (outside the last 25) all collisions; 100-124: 3 goals and 1 collision each
+    ep = np.arange(125)
+    metrics = pd.DataFrame({"episode": ep, "seed": 0, "goals": np.where(ep >= 100, 3, 0)})
+    metrics = metrics.assign(collisions=np.where(ep >= 100, 1, 5), reached_goal=ep >= 100, eval_success=np.nan)
+    metrics.to_csv(tmp_path / "points" / fixed.id / "metrics.csv", index=False)
     good = {"cylinders": [0.9, 1.0], "boxes": [0.9, 0.9], "walls": [0.8, 0.8], "mixture": [0.9, 0.8]}
     _write(tmp_path / "points" / proc.id, [0.7, 0.7], [1.0, 0.9], good)
     out = report(sweep, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
@@ -70,6 +75,8 @@ def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
     assert t.loc["procedural (mixture)", "walls"] == pytest.approx(0.8)
     assert t.loc["procedural (mixture)", "cylinders_ci_seeds_high"] == pytest.approx(1.0)
     assert t.loc["thesis rooms", "train_success"] == pytest.approx(0.85)
+    assert t.loc["thesis rooms", "train_goal_share"] == pytest.approx(0.75)  # 75 goals of 100 ended attempts
+    assert np.isnan(t.loc["procedural (mixture)", "train_goal_share"])  # no metrics.csv written
     assert list(t.learner) == ["ddpg", "ddpg"]  # a sweep over learners (configs/sweeps/learners.yaml) names each
     g = pd.read_csv(tmp_path / "generalization_goal.csv")
     assert len(g) == 1 and g.rooms[0] == "procedural (mixture)"  # the goal concerns procedural training

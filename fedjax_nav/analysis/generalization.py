@@ -43,10 +43,21 @@ def _suite_families(folder: Path) -> pd.DataFrame | None:
     return pd.read_csv(f) if (folder / rundir.SUITE_JSON).exists() and f.exists() else None
 
 
+def goal_share(metrics: pd.DataFrame, last: int = 25) -> float:
+    """Of the attempts that ended (a goal or a collision) in the last `last` training episodes, the
+    share that ended at the goal. With many environments per robot the summary's training success
+    (a robot reached at least one goal in the episode) is 1 as soon as one of its environments
+    succeeds once; this share is what the robot's environments actually did."""
+    tail = metrics[metrics["episode"] >= int(metrics["episode"].max()) + 1 - last]
+    ended = float(tail["goals"].sum() + tail["collisions"].sum())
+    return float(tail["goals"].sum()) / ended if ended else float("nan")
+
+
 def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
     """One row per finished point: training success (last 25 episodes, mean and std over seeds),
-    arena success (all agents; std over seeds), and per held-out family the success with the 95%
-    bootstrap interval over training seeds (`ci_seeds_*`) and over rooms (`ci_rooms_*`)."""
+    the training goal share (`goal_share`), arena success (all agents; std over seeds), and per
+    held-out family the success with the 95% bootstrap interval over training seeds (`ci_seeds_*`)
+    and over rooms (`ci_rooms_*`)."""
     rows = []
     for p, s in finished(sweep, Path(points_dir)):
         d = Path(points_dir) / p.id
@@ -60,9 +71,12 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             "seeds": s["seeds"],
             "train_success": s["success_last"],
             "train_success_std": s["success_last_std"],
+            "train_goal_share": np.nan,
             "arena": np.nan,
             "arena_seed_std": np.nan,
         }
+        if (d / rundir.METRICS).exists():
+            row["train_goal_share"] = goal_share(rundir.read_metrics(d, ["episode", "goals", "collisions"]))
         ev = rundir.read_eval(d, ARENA)
         if ev is not None:
             a = ev["all_agents"]["overall"]
@@ -117,6 +131,8 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
         row |= {"episodes": int(r.episodes), "seeds": int(r.seeds)}
         row["label"] = r.get("label", "")
         row["training, last 25"] = pm(r.train_success, r.train_success_std)
+        if "train_goal_share" in r:
+            row["goal share, last 25"] = "-" if not np.isfinite(r.train_goal_share) else f"{r.train_goal_share:.3f}"
         row["arena"] = pm(r.arena, r.arena_seed_std)
         row.update({f: ci(r, f) for f in [*families, "all"]})
         rows.append(row)
