@@ -1,6 +1,7 @@
 """A run of a learner other than DDPG end to end: `train` writes what the learner shares, resumes
-from its checkpoints (zero-size leaves included: a feed-forward PPO's empty GRU state), and both
-evaluations drive its greedy policy; export says which learners it supports."""
+from its checkpoints (zero-size leaves included: a feed-forward PPO's empty GRU state), both
+evaluations drive its greedy policy (a recurrent PPO's with its GRU state carried through each
+episode, checked against a step loop written out here), and its export acts as its greedy policy."""
 
 from __future__ import annotations
 
@@ -27,14 +28,22 @@ TINY = [
 ]
 
 
-@pytest.fixture(scope="module", params=["ppo", "td3"])
+# the case's name -> its overrides (a GRU's minibatches split env.envs_per_robot = 2)
+CASES = {
+    "ppo": ["learner=ppo"],
+    "td3": ["learner=td3"],
+    "ppo-gru": ["learner=ppo", "ppo.recurrent=gru", "ppo.gru_hidden=8"],
+}
+
+
+@pytest.fixture(scope="module", params=list(CASES))
 def learner_run(request, tmp_path_factory):
     from fedjax_nav.training.run import train
 
-    cfg = load_config("thesis/flddpg", TINY + [f"learner={request.param}"])
+    cfg = load_config("thesis/flddpg", TINY + CASES[request.param])
     out = tmp_path_factory.mktemp(request.param) / "run"
     train(cfg, out, progress=False)
-    return request.param, cfg, out
+    return cfg.learner, cfg, out
 
 
 def test_params_hold_what_the_learner_shares(learner_run):
@@ -76,13 +85,122 @@ def test_both_evaluations_drive_the_learners_greedy_policy(learner_run):
     assert len(suite["episodes"]) > 0
 
 
-def test_export_takes_the_deterministic_actors_and_names_the_others(learner_run, tmp_path):
-    from fedjax_nav.deploy.export import EXPORTABLE, ExportError, export_run
+def _greedy_steps(cfg, actor, obs_seq, first_seq):
+    """The learner's greedy actions along one sequence of observations (`first`: the memory resets)."""
+    import jax
+    import jax.numpy as jnp
+
+    from fedjax_nav.agents import learners
+    from fedjax_nav.config import values
+
+    learner = learners.get(cfg.learner)
+    nets = learner.make_nets(values(cfg))
+    memory, out = learner.memory(nets), []
+    for obs, first in zip(obs_seq, first_seq):
+        if first:
+            memory = learner.memory(nets)
+        first_flag = None if memory is None else jnp.bool_(first)
+        action, memory = learner.greedy(nets, actor, jnp.asarray(obs), memory, first_flag)
+        out.append(np.asarray(jax.device_get(action)))
+    return np.stack(out)
+
+
+@pytest.fixture(scope="module")
+def gru_run(learner_run):
+    """The recurrent case with its actors perturbed (a tiny run's policy head starts at ~0, so
+    that its actions barely depend on anything): the hidden state then moves the actions."""
+    import dataclasses
+
+    import jax
+
+    from fedjax_nav.evaluation import load_run
 
     name, cfg, out = learner_run
-    if name in EXPORTABLE:
-        written = export_run(out, tmp_path / "x", "numpy", None, None)
-        assert any(p.name == "policy.py" for p in written)
-    else:
-        with pytest.raises(ExportError, match=f"learner {name}: export supports"):
-            export_run(out, tmp_path / "x", "numpy", None, None)
+    if cfg.ppo.recurrent != "gru" or name != "ppo":
+        pytest.skip("the recurrent PPO case")
+    run = load_run(out)
+    leaves, tree = jax.tree.flatten(run.actor_params)
+    keys = jax.random.split(jax.random.key(7), len(leaves))
+    leaves = [x + 0.7 * jax.random.normal(k, x.shape) for x, k in zip(leaves, keys)]
+    return dataclasses.replace(run, actor_params=jax.tree.unflatten(tree, leaves))
+
+
+def _hand_episode(run, agent: int, T: int, reset_every_step: bool):
+    """Episode 0 (goal 0, attempt 0) of agent `agent` in evaluate_run(run, "eval", attempts=1,
+    max_steps=T), written out step by step: the protocol's keys, noise and env, the learner's
+    greedy policy with its memory from `memory(nets)`, `first` at step 0 (or at every step)."""
+    import jax
+    import jax.numpy as jnp
+
+    from fedjax_nav import worlds
+    from fedjax_nav.agents import learners
+    from fedjax_nav.config import envs, values
+    from fedjax_nav.env.nav import NavEnv, make_params
+    from fedjax_nav.evaluation import ACTION_NOISE, RANGE_NOISE
+
+    cfg = run.cfg
+    w = worlds.load("eval")
+    env = NavEnv(**{**envs.env_settings(cfg, "eval", noise=True, episode_length=T), "mode": "eval", "noise": True})
+    params = make_params(w, **envs.eval_values(cfg, RANGE_NOISE, ACTION_NOISE))
+    G = int(w.num_goals)
+    keys = jax.random.split(jax.random.key(0), run.num_agents * G).reshape(run.num_agents, G)
+    k_reset, key = jax.random.split(keys[agent, 0])
+    obs, state = env.reset(k_reset, params.replace(goal_index=0))
+    learner = learners.get(cfg.learner)
+    nets = learner.make_nets(values(cfg))
+    actor = jax.tree.map(lambda x: x[agent], run.actor_params)
+    memory, poses = learner.memory(nets), [np.asarray(state.pose)]
+    for t in range(T):
+        key, k_step = jax.random.split(key)
+        first = jnp.bool_(t == 0 or reset_every_step)
+        action, memory = learner.greedy(nets, actor, obs, memory, first)
+        obs, state, _, term, trunc, _ = env.step(k_step, state, action, params)
+        poses.append(np.asarray(state.pose))
+        if bool(term | trunc):
+            break
+    return np.stack(poses)
+
+
+def test_recurrent_evaluation_carries_the_hidden_state_through_the_episode(gru_run):
+    from fedjax_nav.evaluation import evaluate_run
+
+    T = 16
+    ev = evaluate_run(gru_run, "eval", attempts=1, max_steps=T)
+    for agent in (0, 1):
+        got = ev.result.poses[agent, 0, 0]
+        want = _hand_episode(gru_run, agent, T, reset_every_step=False)
+        np.testing.assert_allclose(got[: len(want)], want, atol=1e-4)
+        assert int(ev.result.steps[agent, 0, 0]) == len(want) - 1
+        # zeroing the GRU state at every step drives elsewhere: the carried state is what acts
+        forgetful = _hand_episode(gru_run, agent, T, reset_every_step=True)
+        n = min(len(forgetful), len(want))
+        assert np.abs(forgetful[:n] - want[:n]).max() > 1e-3
+
+
+def test_export_acts_as_the_learners_greedy_policy(learner_run, tmp_path):
+    """Every learner exports (numpy here; ONNX and every activation: tests/test_export_learners.py);
+    the exported policy.py's actions along a sequence with a reset equal the learner's greedy ones."""
+    import importlib.util
+
+    import jax
+
+    from fedjax_nav.deploy.export import export_run
+    from fedjax_nav.evaluation import load_run
+
+    name, cfg, out = learner_run
+    written = export_run(out, tmp_path / "x", "numpy", None, None)
+    assert any(p.name == "policy.py" for p in written)
+    spec = importlib.util.spec_from_file_location(f"exported_{name}_{cfg.ppo.recurrent}", tmp_path / "x" / "policy.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    policy = mod.Policy(str(tmp_path / "x"))
+    rng = np.random.default_rng(0)
+    obs = rng.normal(0.0, 2.0, (10, cfg.env.num_beams + 4)).astype(np.float32)
+    first = [True] + [False] * 4 + [True] + [False] * 4
+    got = []
+    for o, f in zip(obs, first):
+        if f:
+            policy.reset()
+        got.append(policy(o))
+    actor = jax.tree.map(lambda x: x[0], load_run(out).actor_params)
+    np.testing.assert_allclose(np.stack(got), _greedy_steps(cfg, actor, obs, first), atol=1e-5)

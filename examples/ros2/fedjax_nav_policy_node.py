@@ -108,6 +108,7 @@ class PolicyNode(Node):
             )
         self.goal = (msg.pose.position.x, msg.pose.position.y)
         self.prev_action = (0.0, 0.0)  # a new episode
+        self.policy.reset()  # a recurrent policy's hidden state starts from zeros (a no-op otherwise)
         self.get_logger().info(f"goal ({self.goal[0]:.2f}, {self.goal[1]:.2f})")
 
     # ------------------------------------------------------------------ control

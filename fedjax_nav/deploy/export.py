@@ -9,8 +9,14 @@ default: the run's first seed, config run.seed). --agent K: the network within t
 numpy: DIR/weights.npz + DIR/policy.py (policy_template.py: the actor and the observation
 functions in numpy, no JAX) + DIR/meta.json.
 onnx:  DIR/policy.onnx (input "obs" float32[batch, num_beams + 4], output "action"
-float32[batch, 2]) + DIR/meta.json + DIR/policy.py (for its observation functions; its `Policy`
-class needs the numpy format's weights.npz).
+float32[batch, 2]; a recurrent policy also takes "h" float32[batch, gru] and returns "h_out")
++ DIR/meta.json + DIR/policy.py (for its observation functions; its `Policy` class needs the
+numpy format's weights.npz).
+
+Every learner exports its greedy action, as `agents.learners.Learner.greedy` computes it: how is
+data, `EXPORTS` (learner -> the config section of its actor's sizes and the network kind that
+policy_template.py runs): DDPG's and TD3's actor ("heads"), SAC's and feed-forward PPO's
+squashed mean ("squashed"), recurrent PPO's GRU with its hidden state ("gru").
 
 Why the ONNX graph is written with the `onnx` package's helper API and not with jax2onnx:
 jax2onnx 0.17.1 (the newest on PyPI) does export this actor (checked in an isolated directory:
@@ -32,6 +38,7 @@ import json
 import shutil
 import sys
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -45,7 +52,34 @@ def _project():
 
 
 FORMATS = ("numpy", "onnx")
-EXPORTABLE = ("ddpg", "td3")  # learners whose actor is DDPG's network (agents/networks.Actor)
+
+
+class ActorExport(NamedTuple):
+    """How one learner's greedy actor is exported (export_run reads this, never the learner's name)."""
+
+    section: str  # the config section holding the actor's hidden, depth, activation
+    kind: Callable  # (cfg) -> the network kind of policy_template.py: "heads", "squashed" or "gru"
+
+
+def _heads(cfg) -> str:
+    return "heads"
+
+
+def _squashed(cfg) -> str:
+    return "squashed"
+
+
+def _ppo_kind(cfg) -> str:
+    return "gru" if cfg.ppo.recurrent == "gru" else "squashed"
+
+
+EXPORTS: dict[str, ActorExport] = {
+    "ddpg": ActorExport("ddpg", _heads),  # agents/networks.Actor: sigmoid and tanh heads
+    "td3": ActorExport("ddpg", _heads),  # the same actor
+    "sac": ActorExport("ddpg", _squashed),  # SquashedGaussianActor's mean (its log-std head is not needed)
+    "ppo": ActorExport("ppo", _ppo_kind),  # MeanNet, or RecurrentMLP with its GRU
+}
+EXPORTABLE = tuple(EXPORTS)  # the learners export supports
 TEMPLATE = Path(__file__).with_name("policy_template.py")
 ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat: runtimes from 2022 on read it
 ONNX_IR_VERSION = 8  # the IR version of opset 17 (onnx would stamp its newest, which older runtimes refuse)
@@ -72,14 +106,60 @@ def actor_weights(actor_params: dict, depth: int) -> dict[str, np.ndarray]:
     return out
 
 
-def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict | None = None):
+def _dense(p: dict, name: str) -> dict[str, np.ndarray]:
+    """One flax Dense layer's arrays under `name`/kernel (and `name`/bias when it has one)."""
+    out = {f"{name}/kernel": np.asarray(p["kernel"], np.float32)}
+    if "bias" in p:
+        out[f"{name}/bias"] = np.asarray(p["bias"], np.float32)
+    return out
+
+
+def squashed_weights(actor_params: dict, depth: int) -> dict[str, np.ndarray]:
+    """A squashed-Gaussian actor's params (SquashedGaussianActor or MeanNet: Dense_i, "mean"; a
+    "log_std" head is left out, the greedy action does not use it) -> the arrays of
+    policy_template.squashed_forward: hidden_{i}/kernel, hidden_{i}/bias, mean/kernel, mean/bias."""
+    p = actor_params["params"] if "params" in actor_params else actor_params
+    out = {}
+    for i in range(depth):
+        out.update(_dense(p[f"Dense_{i}"], f"hidden_{i}"))
+    return {**out, **_dense(p["mean"], "mean")}
+
+
+def gru_weights(actor_params: dict, depth: int) -> dict[str, np.ndarray]:
+    """A RecurrentMLP's params (embed, gru/GRUCell_0/{ir,iz,in,hr,hz,hn}, Dense_i for i < depth - 1,
+    head) -> the arrays of policy_template.gru_forward."""
+    p = actor_params["params"] if "params" in actor_params else actor_params
+    out = _dense(p["embed"], "embed")
+    cell = p["gru"]["GRUCell_0"]
+    for gate in ("ir", "iz", "in", "hr", "hz", "hn"):
+        out.update(_dense(cell[gate], f"gru/{gate}"))
+    for i in range(depth - 1):
+        out.update(_dense(p[f"Dense_{i}"], f"hidden_{i}"))
+    return {**out, **_dense(p["head"], "head")}
+
+
+WEIGHTS = {"heads": actor_weights, "squashed": squashed_weights, "gru": gru_weights}
+INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}  # its kernel's rows: the observation
+ACTION_DOC = {
+    "heads": ["v / v_max in [0, 1] (sigmoid)", "omega / omega_max in [-1, 1] (tanh)"],
+    "squashed": ["v / v_max in [0, 1] (0.5 + 0.5 tanh(mean_v))", "omega / omega_max in [-1, 1] (tanh(mean_omega))"],
+}
+ACTION_DOC["gru"] = ACTION_DOC["squashed"]
+
+
+def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict | None = None, kind: str = "heads"):
     """The actor as an onnx.ModelProto: input "obs" float32[batch, obs_size], output "action"
-    float32[batch, 2] = concat(sigmoid(v_head(x)), tanh(omega_head(x))), x = the hidden stack."""
+    float32[batch, 2]. kind "heads": concat(sigmoid(v_head(x)), tanh(omega_head(x))), x = the
+    hidden stack; "squashed": loc + scale * tanh(mean(x)) (box loc (0.5, 0), scale (0.5, 1));
+    "gru": also input "h" float32[batch, gru] (zeros at an episode's start) and output "h_out"
+    (the state after this step, to feed back as "h"), the layers of policy_template.gru_forward."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
+    if kind not in WEIGHTS:
+        raise ExportError(f"unknown network kind {kind!r}")
     depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
-    obs_size = int(weights["hidden_0/kernel"].shape[0])
+    obs_size = int(weights[f"{INPUT_LAYER[kind]}/kernel"].shape[0])
     inits, nodes = [], []
 
     def const(name, value):
@@ -87,15 +167,20 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
         return name
 
     def gemm(x, prefix, out):
-        w, b = (
-            const(f"{prefix}.kernel", weights[f"{prefix}/kernel"]),
-            const(f"{prefix}.bias", weights[f"{prefix}/bias"]),
-        )
+        w = const(f"{prefix}.kernel", weights[f"{prefix}/kernel"])
+        if f"{prefix}/bias" not in weights:  # the GRU's recurrent gates have no bias
+            nodes.append(helper.make_node("MatMul", [x, w], [out], name=f"{prefix}.matmul"))
+            return out
+        b = const(f"{prefix}.bias", weights[f"{prefix}/bias"])
         nodes.append(helper.make_node("Gemm", [x, w, b], [out], name=f"{prefix}.gemm"))
         return out
 
+    def node(op, ins, out):
+        nodes.append(helper.make_node(op, ins, [out]))
+        return out
+
     def act(x, i):
-        out = f"h{i}"
+        out = f"h{i}" if isinstance(i, int) else i
         if activation == "relu":
             nodes.append(helper.make_node("Relu", [x], [out]))
         elif activation == "tanh":
@@ -123,26 +208,43 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
             raise ExportError(f"unknown activation {activation!r}")
         return out
 
+    def squash_into_box(mean):  # loc + scale * tanh(mean): the squashed Gaussian's mode
+        t = node("Tanh", [mean], f"{mean}.tanh")
+        scaled = node("Mul", [const("box.scale", [[0.5, 1.0]]), t], f"{mean}.scaled")
+        return node("Add", [const("box.loc", [[0.5, 0.0]]), scaled], "action")
+
+    inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])]
+    outputs = [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])]
     x = "obs"
+    if kind == "gru":  # flax's GRUCell, as policy_template.gru_cell
+        gru = int(weights["gru/hn/kernel"].shape[0])
+        inputs.append(helper.make_tensor_value_info("h", TensorProto.FLOAT, ["batch", gru]))
+        outputs.append(helper.make_tensor_value_info("h_out", TensorProto.FLOAT, ["batch", gru]))
+        x = act(gemm("obs", "embed", "embed.z"), "embed.out")
+        r_pre = node("Add", [gemm(x, "gru/ir", "ir"), gemm("h", "gru/hr", "hr")], "r.pre")
+        z_pre = node("Add", [gemm(x, "gru/iz", "iz"), gemm("h", "gru/hz", "hz")], "z.pre")
+        r, z = node("Sigmoid", [r_pre], "r"), node("Sigmoid", [z_pre], "z")
+        rh = node("Mul", [r, gemm("h", "gru/hn", "hn")], "r.hn")
+        n = node("Tanh", [node("Add", [gemm(x, "gru/in", "in"), rh], "n.pre")], "n")
+        one_minus_z = node("Sub", [const("gru.one", 1.0), z], "1-z")
+        x = node("Add", [node("Mul", [one_minus_z, n], "(1-z)n"), node("Mul", [z, "h"], "zh")], "h_out")
     for i in range(depth):
         x = act(gemm(x, f"hidden_{i}", f"z{i}"), i)
-    gemm(x, "v_head", "v_pre")
-    gemm(x, "omega_head", "omega_pre")
-    nodes.append(helper.make_node("Sigmoid", ["v_pre"], ["v"]))
-    nodes.append(helper.make_node("Tanh", ["omega_pre"], ["omega"]))
-    nodes.append(helper.make_node("Concat", ["v", "omega"], ["action"], axis=1))
-    graph = helper.make_graph(
-        nodes,
-        "fedjax_nav_actor",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])],
-        initializer=inits,
-    )
+    if kind == "heads":
+        gemm(x, "v_head", "v_pre")
+        gemm(x, "omega_head", "omega_pre")
+        nodes.append(helper.make_node("Sigmoid", ["v_pre"], ["v"]))
+        nodes.append(helper.make_node("Tanh", ["omega_pre"], ["omega"]))
+        nodes.append(helper.make_node("Concat", ["v", "omega"], ["action"], axis=1))
+    else:
+        squash_into_box(gemm(x, "mean" if kind == "squashed" else "head", "mean_pre"))
+    graph = helper.make_graph(nodes, "fedjax_nav_actor", inputs, outputs, initializer=inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", ONNX_OPSET)], producer_name="fedjax_nav")
     model.ir_version = ONNX_IR_VERSION
     model.doc_string = (
-        "fedjax_nav DDPG actor: obs = (ranges[num_beams] m, goal distance m, goal bearing rad, "
+        f"fedjax_nav greedy actor ({kind}): obs = (ranges[num_beams] m, goal distance m, goal bearing rad, "
         "previous action) -> action = (v / v_max, omega / omega_max)"
+        + ("; h: the GRU state (zeros at an episode's start), h_out: the next one" if kind == "gru" else "")
     )
     for key, value in (metadata or {}).items():
         entry = model.metadata_props.add()
@@ -206,13 +308,12 @@ def export_run(
         raise ExportError(str(e)) from None
     flat, seed, agent = select(run, seed, agent)
     cfg = run.cfg
-    if cfg.learner not in EXPORTABLE:  # their actors end in a squashed Gaussian's mean, not these heads
-        raise ExportError(
-            f"{run.run_dir}: learner {cfg.learner}: export supports {', '.join(EXPORTABLE)} "
-            "(the deterministic actor) so far"
-        )
-    e, d = cfg.env, cfg.ddpg
-    weights = actor_weights(_tree_map_index(run.actor_params, flat), d.depth)
+    if cfg.learner not in EXPORTS:
+        raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports {', '.join(EXPORTABLE)}")
+    how = EXPORTS[cfg.learner]
+    kind = how.kind(cfg)
+    e, d = cfg.env, getattr(cfg, how.section)
+    weights = WEIGHTS[kind](_tree_map_index(run.actor_params, flat), d.depth)
     obs_size = int(e.num_beams) + 4
     meta = {
         "format": fmt,
@@ -225,17 +326,19 @@ def export_run(
         "collision_distance": float(e.collision_distance),
         "run_dir": str(Path(run_dir).resolve()),
         "method": cfg.method,
+        "learner": cfg.learner,
         "seed": seed,
         "agent": agent,
         "agent_index": flat,
         "network": {
+            "kind": kind,
             "obs_size": obs_size,
             "hidden": int(d.hidden),
             "depth": int(d.depth),
             "activation": d.activation,
             "action_size": 2,
-            "layers": [[int(weights[f"hidden_{i}/kernel"].shape[0]), int(d.hidden)] for i in range(d.depth)]
-            + [[int(d.hidden), 1], [int(d.hidden), 1]],
+            "layers": [[int(n) for n in w.shape] for k, w in weights.items() if k.endswith("/kernel")],
+            **({"gru": int(weights["gru/hn/kernel"].shape[0])} if kind == "gru" else {}),
         },
         "observation": [
             "ranges[num_beams] (m, beam i at heading + 2 pi i / num_beams, clipped to max_range)",
@@ -244,8 +347,13 @@ def export_run(
             "previous action v / v_max in [0, 1]",
             "previous action omega / omega_max in [-1, 1]",
         ],
-        "action": ["v / v_max in [0, 1] (sigmoid)", "omega / omega_max in [-1, 1] (tanh)"],
+        "action": ACTION_DOC[kind],
     }
+    if kind == "gru":
+        meta["memory"] = (
+            "a GRU state h float32[gru]: zeros at an episode's start (a new goal: Policy.reset()), "
+            "carried from one control step to the next (Policy keeps it; ONNX: input h, output h_out)"
+        )
     out.mkdir(parents=True, exist_ok=True)
     for name in ("weights.npz", "policy.onnx", "policy.py", "meta.json"):  # --force: no stale files of another format
         (out / name).unlink(missing_ok=True)
@@ -263,6 +371,9 @@ def export_run(
             "output_shape": ["batch", 2],
             "opset": ONNX_OPSET,
         }
+        if kind == "gru":
+            gru = meta["network"]["gru"]
+            meta["onnx"].update(state_input="h", state_output="h_out", state_shape=["batch", gru])
         model = onnx_model(
             weights,
             d.activation,
@@ -270,6 +381,7 @@ def export_run(
                 k: meta[k]
                 for k in ("num_beams", "max_range", "v_max", "omega_max", "dt", "run_dir", "seed", "agent", "network")
             },
+            kind,
         )
         (out / "policy.onnx").write_bytes(model.SerializeToString())
         written.append(out / "policy.onnx")

@@ -10,6 +10,20 @@ This file is copied into every exported folder by `fedjax-nav export` (it is
     obs = policy.observation(ranges, (x, y, yaw), (goal_x, goal_y), prev_action)
     action = policy(obs)                            # (v / v_max, omega / omega_max)
     v, omega = policy.velocity(action)              # m/s, rad/s  -> geometry_msgs/Twist
+    policy.reset()                                  # at a new goal (an episode's start)
+
+Networks (meta.json's network.kind, one per learner's greedy actor):
+
+- "heads" (DDPG, TD3): depth x (Dense + activation), then two 1-unit heads, sigmoid (v / v_max)
+  and tanh (omega / omega_max). `actor_forward`.
+- "squashed" (SAC, feed-forward PPO): depth x (Dense + activation), then a 2-unit mean, squashed
+  into the box: (0.5 + 0.5 tanh(mean_v), tanh(mean_omega)), the squashed Gaussian's mode.
+  `squashed_forward`.
+- "gru" (recurrent PPO): Dense + activation, a GRU cell (flax's GRUCell) on the hidden state h,
+  (depth - 1) x (Dense + activation), the 2-unit mean, squashed as above. `gru_forward(weights,
+  obs, h) -> (action, h)`. `Policy` keeps h between calls: zeros at the start and after
+  `reset()`, which a robot calls at every new goal (the simulator's episode start, where
+  training reset it). Without a memory (the other kinds) `reset()` does nothing.
 
 Conventions (the simulator's, fedjax_nav.env.nav / fedjax_nav.env.geometry):
 
@@ -58,6 +72,9 @@ __all__ = [
     "ACTIVATIONS",
     "Policy",
     "actor_forward",
+    "squashed_forward",
+    "gru_forward",
+    "squash",
     "pool_scan",
     "goal_features",
     "build_observation",
@@ -116,6 +133,63 @@ def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
     v = _sigmoid(x @ weights["v_head/kernel"] + weights["v_head/bias"])
     w = np.tanh(x @ weights["omega_head/kernel"] + weights["omega_head/bias"])
     return np.concatenate([v, w], axis=-1).astype(np.float32)
+
+
+def _trunk(weights: dict, x, act, prefix: str = "hidden_") -> np.ndarray:
+    """Every `{prefix}{i}` Dense layer in order, each followed by the activation."""
+    depth = sum(1 for k in weights if k.startswith(prefix) and k.endswith("/kernel"))
+    for i in range(depth):
+        x = act(x @ weights[f"{prefix}{i}/kernel"] + weights[f"{prefix}{i}/bias"])
+    return x
+
+
+def _activation(activation: str):
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"unknown activation {activation!r} (known: {', '.join(ACTIVATIONS)})")
+    return ACTIVATIONS[activation]
+
+
+# the action box [0, 1] x [-1, 1] as loc + scale * [-1, 1]
+BOX_LOC = np.array([0.5, 0.0], np.float32)
+BOX_SCALE = np.array([0.5, 1.0], np.float32)
+
+
+def squash(mean) -> np.ndarray:
+    """A raw Gaussian mean [..., 2] -> the box: loc + scale * tanh(mean) (the squashed mode)."""
+    return (BOX_LOC + BOX_SCALE * np.tanh(np.asarray(mean, np.float32))).astype(np.float32)
+
+
+def squashed_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
+    """A squashed-Gaussian policy's greedy action (SAC's actor, feed-forward PPO's mean net):
+    depth x (Dense(hidden) + activation), then "mean" [hidden, 2], squashed into the box.
+    obs: [..., obs_size]; returns float32[..., 2]."""
+    x = _trunk(weights, np.asarray(obs, np.float32), _activation(activation))
+    return squash(x @ weights["mean/kernel"] + weights["mean/bias"])
+
+
+def gru_cell(weights: dict, x, h) -> np.ndarray:
+    """flax's GRUCell: r = sigmoid(x W_ir + b_ir + h W_hr), z = sigmoid(x W_iz + b_iz + h W_hz),
+    n = tanh(x W_in + b_in + r (h W_hn + b_hn)), h' = (1 - z) n + z h."""
+    w = weights
+    r = _sigmoid(x @ w["gru/ir/kernel"] + w["gru/ir/bias"] + h @ w["gru/hr/kernel"])
+    z = _sigmoid(x @ w["gru/iz/kernel"] + w["gru/iz/bias"] + h @ w["gru/hz/kernel"])
+    n = np.tanh(x @ w["gru/in/kernel"] + w["gru/in/bias"] + r * (h @ w["gru/hn/kernel"] + w["gru/hn/bias"]))
+    return ((1.0 - z) * n + z * h).astype(np.float32)
+
+
+def gru_forward(weights: dict, obs, h, activation: str = "tanh") -> tuple[np.ndarray, np.ndarray]:
+    """One step of the recurrent policy: (action float32[..., 2], h' float32[..., gru]) for obs
+    [..., obs_size] and the hidden state h [..., gru] before the step (zeros at an episode's start).
+    Layers: "embed" + activation, the GRU ("gru/*"), "hidden_{i}" + activation, "head" [hidden, 2]."""
+    act = _activation(activation)
+    x = act(np.asarray(obs, np.float32) @ weights["embed/kernel"] + weights["embed/bias"])
+    h = gru_cell(weights, x, np.asarray(h, np.float32))
+    y = _trunk(weights, h, act)
+    return squash(y @ weights["head/kernel"] + weights["head/bias"]), h
+
+
+# the first layer (its kernel's rows are the observation) of each network kind
+INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}
 
 
 # ----------------------------------------------------------------------------- observations
@@ -241,13 +315,20 @@ def load_weights(folder: str | None = None) -> dict:
 
 
 class Policy:
-    """The exported actor with the run's settings (meta.json) and its observation helpers."""
+    """The exported actor with the run's settings (meta.json) and its observation helpers.
+
+    A recurrent policy (network kind "gru") keeps its hidden state `h` between calls: zeros at
+    the start and after `reset()` (call it at every new goal). `reset()` is there for every kind,
+    so that a robot's loop need not know which one it runs."""
 
     def __init__(self, folder: str | None = None, weights: dict | None = None, meta: dict | None = None):
         self.folder = folder or HERE
         self.meta = meta if meta is not None else load_meta(self.folder)
         self.weights = weights if weights is not None else load_weights(self.folder)
         net = self.meta["network"]
+        self.kind = net.get("kind", "heads")  # exports before other learners: DDPG's actor
+        if self.kind not in INPUT_LAYER:
+            raise ValueError(f"{self.folder}: unknown network kind {self.kind!r} (known: {', '.join(INPUT_LAYER)})")
         self.activation = net["activation"]
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"{self.folder}: unknown activation {self.activation!r}")
@@ -258,15 +339,28 @@ class Policy:
         self.dt = float(self.meta.get("dt", 0.1))
         self.goal_radius = float(self.meta.get("goal_radius", 0.5))
         self.obs_size = self.num_beams + 4
-        k = self.weights["hidden_0/kernel"]
+        k = self.weights[f"{INPUT_LAYER[self.kind]}/kernel"]
         if k.shape[0] != self.obs_size:
             raise ValueError(
                 f"{self.folder}: weights take {k.shape[0]} inputs, meta.json says "
                 f"num_beams={self.num_beams} (obs size {self.obs_size})"
             )
+        # the hidden state's size (0: no memory)
+        self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0
+        self.reset()
+
+    def reset(self) -> None:
+        """An episode's start (a new goal): the hidden state back to zeros (no-op without one)."""
+        self.h = np.zeros(self.memory_size, np.float32)
 
     def __call__(self, obs) -> np.ndarray:
-        """obs float32[..., obs_size] -> action float32[..., 2] in network units."""
+        """obs float32[..., obs_size] -> action float32[..., 2] in network units; a recurrent
+        policy advances its hidden state (batched obs: one state per row after the first call)."""
+        if self.kind == "gru":
+            action, self.h = gru_forward(self.weights, obs, self.h, self.activation)
+            return action
+        if self.kind == "squashed":
+            return squashed_forward(self.weights, obs, self.activation)
         return actor_forward(self.weights, obs, self.activation)
 
     act = __call__

@@ -1,6 +1,7 @@
 """The evaluation protocol (docs/evaluation.md; thesis 4.2), one job per module:
 
     rollout   the jitted program: every agent x goal x attempt of a policy (evaluate_policy)
+    policies  a policy with a memory (MemoryPolicy: a recurrent policy's state through each episode)
     metrics   per-episode rows and their aggregation (episodes_frame, summarize, best_agents)
     runs      training runs: load_run, evaluate_run, evaluate_runs (what `fedjax-nav evaluate` does)
     report    files and tables: write_run (into RUN/eval/<world>/), comparisons, summary_table
@@ -32,6 +33,7 @@ from fedjax_nav.evaluation.rollout import (
     RANGE_NOISE,
     EvalError,
     EvalResult,
+    MemoryPolicy,
     evaluate_policy,
 )
 from fedjax_nav.evaluation.runs import (
@@ -53,6 +55,7 @@ __all__ = [
     "STRAIGHT_LINE_NOTE",
     "EvalError",
     "EvalResult",
+    "MemoryPolicy",
     "RunAgents",
     "RunEvaluation",
     "actor_policy",

@@ -21,6 +21,10 @@ start-goal distance is recorded beside it (`start_goal_distance`).
 
     evaluate_policy(policy, world, params, ...) -> EvalResult   any policy function
 
+A policy with a memory (a recurrent one: PPO's GRU) is a `MemoryPolicy`: its memory starts at
+`init()` in every episode (with `first` True at the episode's first step, False after) and is
+carried step to step inside the program, as the trainer's probe carries it.
+
 Memory: `evaluate_policy` refuses an evaluation whose trajectories and episode states would not
 fit (`limits.check_eval_memory`) before anything is allocated or compiled.
 """
@@ -43,6 +47,7 @@ from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.env.nav import EnvState, NavEnv, make_params
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
+from fedjax_nav.evaluation.policies import MemoryPolicy, as_memory_policy, no_memory
 from fedjax_nav.worlds import World
 
 # Defaults of the evaluation noise (std of Gaussian noise): ranges in m, actions in the network's
@@ -66,6 +71,8 @@ class _Episode:
     timeout: jax.Array  # bool[]
     steps: jax.Array  # i32[] steps taken until (and including) the terminal one
     path: jax.Array  # f32[] m travelled
+    memory: Any = None  # the policy's memory before the next step (None: a policy without one)
+    first: Any = None  # bool[]: the next step is the episode's first (None without a memory)
 
 
 @dataclass
@@ -121,29 +128,32 @@ def eval_program(env_settings: dict, policy: Callable, chunk: int):
     function (static; cached by identity, so the same function reuses the program).
 
     run(agent_params [A, ...], env_params, goal_index i32[G], keys [A, G*K]) with K = keys' second
-    axis // G.
+    axis // G. `policy`: `policy(params, obs) -> action`, or a `MemoryPolicy`.
     """
-    return _cached_program(tuple(sorted(env_settings.items())), policy, int(chunk))
+    return _cached_program(tuple(sorted(env_settings.items())), as_memory_policy(policy), int(chunk))
 
 
-def _init_one(env: NavEnv, key, g, env_params) -> _Episode:
-    """One episode's first state: reset at start 0 towards goal row `g`."""
+def _init_one(env: NavEnv, memory_init: Callable, key, g, env_params) -> _Episode:
+    """One episode's first state: reset at start 0 towards goal row `g`, the policy's memory at
+    an episode's start."""
     k_reset, k_run = jax.random.split(key)
     obs, state = env.reset(k_reset, env_params.replace(goal_index=g))
     f, i = jnp.bool_(False), jnp.int32(0)
-    return _Episode(state, obs, k_run, f, f, f, f, i, jnp.float32(0.0))
+    memory = memory_init()
+    first = None if memory is None else jnp.bool_(True)
+    return _Episode(state, obs, k_run, f, f, f, f, i, jnp.float32(0.0), memory, first)
 
 
 @functools.lru_cache(maxsize=16)
-def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
+def _cached_program(env_settings: tuple, policy: MemoryPolicy, chunk: int):
     env = NavEnv(**dict(env_settings))
     T = env.episode_length
     n_chunks = -(-T // chunk)
-    init_one = functools.partial(_init_one, env)
+    init_one = functools.partial(_init_one, env, policy.init)
 
     def step_one(params, ep: _Episode, env_params):
         key, k_step = jax.random.split(ep.key)
-        action = policy(params, ep.obs)
+        action, memory = policy.step(params, ep.obs, ep.memory, ep.first)
         obs, state, _, terminated, truncated, info = env.step(k_step, ep.env_state, action, env_params)
         moved = jnp.linalg.norm(info["pose"][:2] - ep.env_state.pose[:2])
         goal, collision = info["goal"], info["collision"]
@@ -157,6 +167,8 @@ def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
             timeout=truncated & ~terminated,
             steps=ep.steps + 1,
             path=ep.path + moved,
+            memory=memory,
+            first=None if ep.first is None else jnp.bool_(False),
         )
         # Freeze after the end: a finished episode keeps its last state (and pose) for good.
         return jax.tree.map(lambda n, o: jnp.where(ep.done, o, n), new, ep)
@@ -207,11 +219,13 @@ def _cached_program(env_settings: tuple, policy: Callable, chunk: int):
     return jax.jit(run)
 
 
-def episode_state(env_settings: dict, env_params):
+def episode_state(env_settings: dict, env_params, policy=None):
     """The shapes of one episode's running state (`jax.eval_shape`: nothing is allocated) under
-    `env_settings` with one room's `env_params` (arrays or ShapeDtypeStructs), for
+    `env_settings` with one room's `env_params` (arrays or ShapeDtypeStructs), the policy's memory
+    included (`policy`: a MemoryPolicy; None or a plain function: no memory), for
     `limits.check_eval_memory`."""
-    init = functools.partial(_init_one, NavEnv(**env_settings))
+    memory_init = as_memory_policy(policy).init if policy is not None else no_memory
+    init = functools.partial(_init_one, NavEnv(**env_settings), memory_init)
     return jax.eval_shape(init, jax.random.key(0), jnp.int32(0), env_params)
 
 
@@ -246,7 +260,8 @@ def evaluate_policy(
 ) -> EvalResult:
     """Run the protocol for any policy: every agent x goal x attempt, one jitted program.
 
-    policy: `policy(agent_params, obs) -> action` when `params` is given, with `params` a pytree
+    policy: `policy(agent_params, obs) -> action` (or a `MemoryPolicy`, carrying its memory through
+        each episode) when `params` is given, with `params` a pytree
         whose leaves have a leading agent axis [A]; `policy(obs) -> action` when `params` is None
         (one agent unless `num_agents` says otherwise, all identical). `obs` is the env's
         observation f32[num_beams + 4] (ranges, goal distance, goal bearing, previous action);
@@ -300,7 +315,8 @@ def evaluate_policy(
     settings = {**env_settings, "episode_length": int(max_steps), "mode": "eval", "noise": True}
     env_params = make_params(world, range_noise=range_noise, action_noise=action_noise, **env_overrides)
     G, K = len(goal_rows), int(attempts)
-    check_eval_memory(settings, episode_state(settings, env_params), (A, G, K), chunk, budget=memory_budget)
+    state = episode_state(settings, env_params, fn)
+    check_eval_memory(settings, state, (A, G, K), chunk, budget=memory_budget)
     keys = jax.random.split(jax.random.key(seed), A * G * K).reshape(A, G * K)
     t0 = time.time()
     program = eval_program(settings, fn, min(int(chunk), int(max_steps)))

@@ -35,6 +35,7 @@ from fedjax_nav.evaluation.rollout import (
     CHUNK,
     RANGE_NOISE,
     EvalError,
+    MemoryPolicy,
     RunAgents,
     RunEvaluation,
     episode_state,
@@ -57,31 +58,31 @@ def actor_policy(hidden: int, depth: int, activation: str) -> Callable:
 
 
 @functools.lru_cache(maxsize=16)
-def _learner_policy(learner_name: str, frozen_values: tuple) -> Callable:
+def _learner_policy(learner_name: str, frozen_values: tuple) -> MemoryPolicy:
     from fedjax_nav.agents import learners
 
     learner = learners.get(learner_name)
     nets = learner.make_nets(dict(frozen_values))
 
-    def policy(params, obs):
-        return learner.greedy(nets, params, obs, learner.memory(nets), jnp.bool_(True))[0]
+    def init():
+        return learner.memory(nets)
 
-    return policy
+    def step(params, obs, memory, first):
+        return learner.greedy(nets, params, obs, memory, first)
+
+    return MemoryPolicy(init, step)
 
 
-def greedy_policy(cfg) -> Callable:
-    """The run's greedy policy as `policy(actor_params, obs)`: DDPG's actor (`actor_policy`, the
-    thesis's evaluation program), or the learner's greedy action (agents.learners; TD3: the same
-    actor, SAC/PPO: the squashed Gaussian's mode). One function object per learner and network
-    settings, so that runs alike share one compiled evaluation. A policy with a memory (PPO's GRU)
-    is refused: the evaluation's rollout carries no hidden state yet."""
+def greedy_policy(cfg) -> Callable | MemoryPolicy:
+    """The run's greedy policy: DDPG's actor as `policy(actor_params, obs)` (`actor_policy`, the
+    thesis's evaluation program), or the learner's greedy action as a `MemoryPolicy`
+    (agents.learners' `memory` and `greedy`; TD3: DDPG's actor, SAC/PPO: the squashed Gaussian's
+    mode; a recurrent PPO's GRU state starts at `memory(nets)` (zeros) with `first` set at each
+    episode's first step and is carried step to step, as in the trainer's probe). One object per
+    learner and network settings, so that runs alike share one compiled evaluation."""
     if cfg.learner == "ddpg":
         d = cfg.ddpg
         return actor_policy(d.hidden, d.depth, d.activation)
-    if cfg.learner == "ppo" and cfg.ppo.recurrent != "none":
-        raise EvalError(
-            f"learner ppo with ppo.recurrent={cfg.ppo.recurrent}: evaluating a recurrent policy is not supported yet"
-        )
     from fedjax_nav.config import values
 
     mine = {k: v for k, v in values(cfg).items() if k.split(".")[0] in ("learner", "ddpg", cfg.learner)}
@@ -188,9 +189,8 @@ def check_run_memory(run: RunAgents, world, attempts: int, max_steps: int | None
     settings = envs.env_settings(under, "eval", noise=True, episode_length=T)
     params = make_params(w, **envs.eval_values(under, RANGE_NOISE, ACTION_NOISE))
     shape = (run.num_agents, int(w.num_goals), int(attempts) * run.num_robots // run.n_nets)
-    return check_eval_memory(
-        settings, episode_state(settings, params), shape, CHUNK, int(attempts), budget, str(run.run_dir)
-    )
+    state = episode_state(settings, params, greedy_policy(cfg))
+    return check_eval_memory(settings, state, shape, CHUNK, int(attempts), budget, str(run.run_dir))
 
 
 def evaluate_run(

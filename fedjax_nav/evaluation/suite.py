@@ -92,9 +92,10 @@ def evaluate_suite(
     params = make_params(world, **values)
     settings = envs.env_settings(cfg, "eval", noise=True, episode_length=T)
     room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), params)  # one room's shapes
-    state = episode_state(settings, room)
+    policy = greedy_policy(cfg)
+    state = episode_state(settings, room, policy)
     check_eval_memory(settings, state, (R, A, G, K), min(CHUNK, T), int(attempts), memory_budget, str(run.run_dir))
-    program = eval_program(settings, greedy_policy(cfg), min(CHUNK, T))
+    program = eval_program(settings, policy, min(CHUNK, T))
     keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
     t0 = time.time()
     rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
