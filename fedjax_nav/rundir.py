@@ -311,3 +311,13 @@ def success_last_per_seed(df, last: int = 25):
     (pass the rows of some robots for their success alone)."""
     tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
     return tail.groupby(["seed", "episode"])["reached_goal"].mean().groupby("seed").mean()
+
+
+def goal_share(df, last: int = 25) -> float:
+    """Of the attempts that ended (a goal or a collision) in the frame's last `last` episodes, the
+    share that ended at the goal (NaN when none ended). With many environments per robot the
+    training success (a robot reached at least one goal in the episode: `reached_goal`) is 1 as soon
+    as one of its environments succeeds once; this share is what its environments actually did."""
+    tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
+    ended = float(tail["goals"].sum() + tail["collisions"].sum())
+    return float(tail["goals"].sum()) / ended if ended else float("nan")

@@ -43,19 +43,9 @@ def _suite_families(folder: Path) -> pd.DataFrame | None:
     return pd.read_csv(f) if (folder / rundir.SUITE_JSON).exists() and f.exists() else None
 
 
-def goal_share(metrics: pd.DataFrame, last: int = 25) -> float:
-    """Of the attempts that ended (a goal or a collision) in the last `last` training episodes, the
-    share that ended at the goal. With many environments per robot the summary's training success
-    (a robot reached at least one goal in the episode) is 1 as soon as one of its environments
-    succeeds once; this share is what the robot's environments actually did."""
-    tail = metrics[metrics["episode"] >= int(metrics["episode"].max()) + 1 - last]
-    ended = float(tail["goals"].sum() + tail["collisions"].sum())
-    return float(tail["goals"].sum()) / ended if ended else float("nan")
-
-
 def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
     """One row per finished point: training success (last 25 episodes, mean and std over seeds),
-    the training goal share (`goal_share`), arena success (all agents; std over seeds), and per
+    the training goal share (`rundir.goal_share`), arena success (all agents; std over seeds), and per
     held-out family the success with the 95% bootstrap interval over training seeds (`ci_seeds_*`)
     and over rooms (`ci_rooms_*`)."""
     rows = []
@@ -76,7 +66,7 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             "arena_seed_std": np.nan,
         }
         if (d / rundir.METRICS).exists():
-            row["train_goal_share"] = goal_share(rundir.read_metrics(d, ["episode", "goals", "collisions"]))
+            row["train_goal_share"] = rundir.goal_share(rundir.read_metrics(d, ["episode", "goals", "collisions"]))
         ev = rundir.read_eval(d, ARENA)
         if ev is not None:
             a = ev["all_agents"]["overall"]

@@ -10,7 +10,7 @@ import pandas as pd
 
 from fedjax_nav.config import Config
 from fedjax_nav.federated.comm import bytes_per_round, communication
-from fedjax_nav.rundir import success_last_per_seed
+from fedjax_nav.rundir import goal_share, success_last_per_seed
 from fedjax_nav.training.trainer import Trainer
 
 
@@ -105,6 +105,7 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
         "success_last": float(tail["success"].mean()),
         "success_last_std": float(tail["success"].std(ddof=0)),
         "success_last_per_seed": [float(x) for x in tail["success"]],
+        "goal_share_last": goal_share(df, last),  # all seeds: goals / ended attempts (rundir.goal_share)
         "reward_last": float(tail["reward"].mean()),
         "reward_last_std": float(tail["reward"].std(ddof=0)),
         "aggregation_events": int(fed_events.iloc[0]) if len(fed_events) else 0,
