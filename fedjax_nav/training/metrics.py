@@ -105,7 +105,8 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
         "success_last": float(tail["success"].mean()),
         "success_last_std": float(tail["success"].std(ddof=0)),
         "success_last_per_seed": [float(x) for x in tail["success"]],
-        "goal_share_last": goal_share(df, last),  # all seeds: goals / ended attempts (rundir.goal_share)
+        # all seeds: goals / ended attempts (rundir.goal_share); null when no attempt ended
+        "goal_share_last": None if np.isnan(share := goal_share(df, last)) else share,
         "reward_last": float(tail["reward"].mean()),
         "reward_last_std": float(tail["reward"].std(ddof=0)),
         "aggregation_events": int(fed_events.iloc[0]) if len(fed_events) else 0,
