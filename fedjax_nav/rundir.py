@@ -31,6 +31,7 @@ a half-written file and a crash leaves the previous version in place.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -76,12 +77,34 @@ SWEEP_STATS = "sweep_stats.json"
 SWEEP_TABLES = "tables"
 
 
+# A path the user named that cannot be written as asked (too long, a file where a folder is wanted
+# or the other way round, below a file, a symlink loop): bad input, exit 2, not a failed write (4).
+BAD_PATH = (errno.ENAMETOOLONG, errno.EEXIST, errno.ENOTDIR, errno.EISDIR, errno.ELOOP)
+
+
 class RunDirError(ValueError):
     """A run directory or one of its files is missing or unreadable; the message names the file."""
 
 
 class WriteError(OSError):
     """Writing results failed (a full disk, permissions, ...); the message names the file (exit 4)."""
+
+
+def make_folder(path: str | Path, what: str = "run directory") -> None:
+    """Create the folder `path` (and its parents). A path that cannot be a folder is bad input, a
+    RunDirError (exit 2): it exists as something else, lies below a file (ENOTDIR), is a symlink
+    loop (ELOOP) or a name too long for the system (ENAMETOOLONG). Any other failure (a full disk,
+    a read-only folder, permissions) is a WriteError (exit 4)."""
+
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RunDirError(f"{path}: exists and is not a directory") from None
+    except OSError as e:
+        why = f"cannot create the {what} ({e.strerror or e})"
+        if e.errno in (errno.ENOTDIR, errno.ELOOP, errno.ENAMETOOLONG):
+            raise RunDirError(f"{path}: {why}") from None
+        raise WriteError(f"{path}: {why}") from None
 
 
 # ----------------------------------------------------------------------------- the results a folder holds
@@ -259,6 +282,8 @@ def unflatten(flat: dict[str, np.ndarray]) -> dict:
 def read_params(run: str | Path, network: str = "actor") -> dict:
     """One network's parameters as a nested dict of arrays [seed, net, ...] from params.npz."""
     path = run_dir(run, (PARAMS,)) / PARAMS
+    if not path.is_file():  # a FIFO would block np.load forever, a directory fails obscurely
+        raise RunDirError(f"{path}: is not a regular file")
     try:
         with np.load(path) as z:
             flat = {k[len(network) + 1 :]: np.asarray(z[k]) for k in z.files if k.startswith(network + "/")}

@@ -106,6 +106,24 @@ def test_an_evaluation_beyond_the_memory_is_refused_before_allocating(run_dir, c
     assert not (run_dir / "eval").exists()
 
 
+@pytest.mark.parametrize("flags", [[], ["--suite", "cylinders-probe"]], ids=["world", "suite"])
+def test_evaluate_takes_a_memory_budget_as_train_does(run_dir, capfd, flags):
+    """`evaluate --memory-budget SIZE` (before: an unrecognized argument; only the API took one)."""
+    one_line(
+        capfd,
+        ["evaluate", run_dir, *flags, "--memory-budget", "1K"],
+        "--max-steps 32: the evaluation needs about",
+        "more than the memory budget (--memory-budget), 1.0 KiB",
+    )
+    assert not (run_dir / "eval").exists()
+
+
+@pytest.mark.parametrize("text", ["inf", "0", "-1G", "lots"])
+def test_evaluate_refuses_a_budget_that_is_not_a_size(run_dir, capfd, text):
+    one_line(capfd, ["evaluate", run_dir, f"--memory-budget={text}"], "--memory-budget", "expected a positive size")
+    assert not (run_dir / ".lock").exists()  # refused before the run was locked
+
+
 def test_evaluation_takes_trains_budget_rule(run_dir):
     """One rule (`config.memory.over_budget`) with the budget given, for runs, suites and policies."""
     run = load_run(run_dir)

@@ -12,7 +12,6 @@ enough memory), 3 divergence (NaN/Inf or a divergence bound), 4 a failed write (
 from __future__ import annotations
 
 import argparse
-import errno
 import os
 import sys
 
@@ -41,6 +40,12 @@ def _host_devices(args: argparse.Namespace) -> int:
     return 1
 
 
+# The most CPU devices one process forces (`--devices N` on CPU: N XLA host devices): N >= 2^31
+# made XLA abort with its 94-line flag listing, and a few thousand take minutes to start. On GPUs
+# and TPUs a process holds at most a few devices; `--devices` beyond them is refused by the mesh.
+MAX_HOST_DEVICES = 256
+
+
 INTERRUPTED = (
     "interrupted: stopped at once; what was written before is kept "
     "(a run: its last complete checkpoint, `fedjax-nav train --resume RUN` continues)"
@@ -67,6 +72,13 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     n = _host_devices(args)
+    if n > MAX_HOST_DEVICES:  # before XLA reads it
+        print(
+            f"error: --devices {args.devices}: at most {MAX_HOST_DEVICES} devices per process "
+            f"(on CPU each is a forced XLA host device; {os.cpu_count() or 1} cores here)",
+            file=sys.stderr,
+        )
+        return 2
     if (
         n > 1
         and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
@@ -76,7 +88,7 @@ def _main(argv: list[str] | None) -> int:
             os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}"
         ).strip()
     from fedjax_nav.config import ConfigError
-    from fedjax_nav.rundir import RunDirError, WriteError
+    from fedjax_nav.rundir import BAD_PATH, RunDirError, WriteError
     from fedjax_nav.training.checkpoint import CheckpointError
     from fedjax_nav.training.run import DivergenceError, Interrupted
     from fedjax_nav.worlds import WorldError
@@ -96,15 +108,15 @@ def _main(argv: list[str] | None) -> int:
     except WriteError as e:  # a full disk, permissions: the message says what is kept
         print(f"error: {e}", file=sys.stderr)
         return 4
-    except OSError as e:  # any other failed write; a name too long for the OS is bad input
-        if e.errno == errno.ENAMETOOLONG:
-            print(f"error: {one_line(e.filename or '')}: file name too long", file=sys.stderr)
+    except OSError as e:  # any other failed write; a path that cannot be written to as asked is bad input
+        if e.errno in BAD_PATH:
+            why = (e.strerror or str(e)).lower()  # "file name too long", "file exists", "not a directory"
+            print(f"error: {one_line(e.filename or '')}: {why}", file=sys.stderr)
             return 2
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-        print(
-            f"error: {where}{e.strerror or e}; files written before (the last complete checkpoint) are kept",
-            file=sys.stderr,
-        )
+        # only the training commands have checkpoints to name (evaluate, render, worlds: files)
+        kept = " (the last complete checkpoint)" if args.command in ("train", "sweep", "reproduce") else ""
+        print(f"error: {where}{e.strerror or e}; files written before{kept} are kept", file=sys.stderr)
         return 4
     except Interrupted as e:
         print(str(e), file=sys.stderr)

@@ -7,6 +7,10 @@ import argparse
 import os
 from pathlib import Path
 
+# A noise std (m, or action units) beyond the world bound (`worlds.MAX_COORD`, 1e4) is no lidar or
+# actuator; 1e300 became inf in float32 and the evaluation ran on infinite noise.
+MAX_NOISE_STD = 1e4
+
 
 class UserError(Exception):
     """An input error the user can fix; printed as one line, exit code 2."""
@@ -32,10 +36,8 @@ def _train(args: argparse.Namespace) -> int:
 
     from fedjax_nav import rundir
     from fedjax_nav.config import diff, load_config
-    from fedjax_nav.config.sweepfile import SweepError
     from fedjax_nav.training.preflight import refuse_config_change
     from fedjax_nav.training.run import train
-    from fedjax_nav.training.sweep import parse_bytes
 
     overrides = list(args.set or [])
     if args.seeds is not None:
@@ -44,10 +46,7 @@ def _train(args: argparse.Namespace) -> int:
         overrides.append(f"run.episodes={args.episodes}")
     if args.tensorboard:
         overrides.append("run.tensorboard=true")
-    try:
-        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
-    except (SweepError, ValueError, OverflowError) as e:
-        raise UserError(f"--memory-budget: {e}") from None
+    budget = _memory_budget(args.memory_budget)
     src = f"{args.config}{' (with --set)' if overrides else ''}" if args.config else "<defaults> (with --set)"
     if args.from_checkpoint is not None and not args.resume:
         raise UserError("--from-checkpoint N needs --resume RUN_DIR")
@@ -160,10 +159,27 @@ def _evaluate(args: argparse.Namespace) -> int:
     """`evaluate`, holding the lock of every run it evaluates (`_evaluation_lock`) throughout."""
     import contextlib
 
+    budget = _memory_budget(args.memory_budget)  # a bad size is refused before any run is locked
+    for flag, std in (("--range-noise", args.range_noise), ("--action-noise", args.action_noise)):
+        if not 0 <= std <= MAX_NOISE_STD:  # NaN fails too
+            raise UserError(f"{flag}: the noise std must be finite and in [0, {MAX_NOISE_STD:g}], got {std}")
     with contextlib.ExitStack() as locks:
         for run in _evaluated_dirs(args):
             locks.enter_context(_evaluation_lock(run, writes_into=args.out is None or len(args.run_dirs) > 1))
-        return _evaluate_locked(args)
+        return _evaluate_locked(args, budget)
+
+
+def _memory_budget(text: str | None) -> int | None:
+    """`--memory-budget SIZE` in bytes (None: the memory available now); a bad size is a UserError."""
+    if text is None:
+        return None
+    from fedjax_nav.config.sweepfile import SweepError
+    from fedjax_nav.training.sweep import parse_bytes
+
+    try:
+        return parse_bytes(text)
+    except (SweepError, ValueError, OverflowError) as e:
+        raise UserError(f"--memory-budget: {e}") from None
 
 
 def _evaluated_dirs(args: argparse.Namespace) -> list[Path]:
@@ -196,7 +212,7 @@ def _evaluation_lock(run: Path, writes_into: bool):
         return contextlib.nullcontext()
 
 
-def _evaluate_locked(args: argparse.Namespace) -> int:
+def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int:
     from fedjax_nav.evaluation import EvalError, evaluate_runs
 
     common = dict(
@@ -206,6 +222,7 @@ def _evaluate_locked(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_steps=args.max_steps,
         out=args.out,
+        memory_budget=budget,
     )
     try:
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
@@ -247,14 +264,13 @@ def _sweep(args: argparse.Namespace) -> int:
     from fedjax_nav import rundir
     from fedjax_nav.config.sweepfile import SweepError, load_sweep
     from fedjax_nav.experiments.sweeps import run_sweep
-    from fedjax_nav.training.sweep import parse_bytes
 
     try:
         tb = ["run.tensorboard=true"] if args.tensorboard else []
         sweep = load_sweep(args.file, overrides=list(args.set or []) + tb, seeds=args.seeds)
-        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
     except SweepError as e:
         raise UserError(str(e)) from None
+    budget = _memory_budget(args.memory_budget)
     out = Path(args.out or f"runs/sweeps/{sweep.name}")
     with _lock(out, "sweep folder"):
         summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet, devices=args.devices)
@@ -271,11 +287,12 @@ def _sweep(args: argparse.Namespace) -> int:
 def _reproduce(args: argparse.Namespace) -> int:
     from fedjax_nav.config.sweepfile import SweepError
     from fedjax_nav.experiments.reproduce import reproduce
-    from fedjax_nav.training.sweep import parse_bytes
 
-    only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
+    only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only is not None else None
+    if only == []:  # `--only ''` named no experiment: it must not mean all of them (many hours)
+        raise UserError(f"--only {args.only!r}: names no experiment; give comma-separated names, e.g. --only tau,gamma")
+    budget = _memory_budget(args.memory_budget)
     try:
-        budget = parse_bytes(args.memory_budget) if args.memory_budget else None
         out = Path(args.out or f"runs/reproduce-{args.scale}")
         with _lock(out, "report folder"):
             reproduce(
@@ -294,15 +311,10 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 def _lock(out: Path, what: str):
     """Create `out` and hold its lock (`runlock.RunLock`): one writing process per folder."""
-    from fedjax_nav.rundir import RunDirError, WriteError
+    from fedjax_nav.rundir import make_folder
     from fedjax_nav.runlock import RunLock
 
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise RunDirError(f"{out}: exists and is not a directory") from None
-    except OSError as e:
-        raise WriteError(f"{out}: cannot be created ({e.strerror or e})") from None
+    make_folder(out, what)
     return RunLock(out, what)
 
 

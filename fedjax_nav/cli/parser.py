@@ -34,9 +34,44 @@ def positive_int(text: str) -> int:
     return value
 
 
+# A PRNG seed: jax takes any int64 (a larger one was an OverflowError traceback).
+SEED_RANGE = (-(2**63), 2**63 - 1)
+# `render --steps`: the random-policy trajectory is one jitted scan holding every step (1e8 steps
+# asked for 3.2 GB at once; >= 2^31 overflowed the int32 step counter): 333x the default is plenty.
+MAX_RENDER_STEPS = 100_000
+
+
+def bounded_int(lo: int, hi: int, what: str = "an integer"):
+    """An argparse type: an integer in [lo, hi] (the error names the range)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what} in [{lo:,}, {hi:,}], got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"expected {what} in [{lo:,}, {hi:,}], got {value}")
+        return value
+
+    parse.__name__ = "int"  # argparse names the type in its messages; scripts/attack.py reads it
+    return parse
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse with one `error:` line (and the --help hint) instead of 3-10 lines of usage; exit 2.
-    Subparsers inherit the class, so every command's flags behave alike."""
+    Subparsers inherit the class, so every command's flags behave alike.
+
+    A text flag given an empty value (`--out ''`, `--resume "$UNSET"`) is refused: it never means
+    the flag's default, which a flag left out gives (`train --resume ''` used to start a new run,
+    `evaluate --out ''` wrote into the working folder, `reproduce --only ''` ran every experiment)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, rest = super().parse_known_args(args, namespace)
+        for a in self._actions:
+            value = getattr(ns, a.dest, None)
+            if a.option_strings and a.type in (None, str) and isinstance(value, str) and not value.strip():
+                self.error(f"argument {'/'.join(a.option_strings)}: expected a value, got {value!r}")
+        return ns, rest
 
     def error(self, message: str):
         from fedjax_nav.worlds.input_files import one_line
@@ -163,7 +198,7 @@ def add_evaluate(sub) -> None:
     )
     p.add_argument("--range-noise", type=float, default=0.01, help="std of the lidar noise in m (default 0.01)")
     p.add_argument("--action-noise", type=float, default=0.01, help="std of the action noise, action units (0.01)")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the evaluation noise")
+    p.add_argument("--seed", type=bounded_int(*SEED_RANGE), default=0, help="PRNG seed of the evaluation noise")
     p.add_argument(
         "--max-steps", type=positive_int, default=None, help="time-out T (default: the run's episode_length)"
     )
@@ -188,6 +223,12 @@ def add_evaluate(sub) -> None:
         help="evaluate on a held-out suite of generated rooms instead of --world (e.g. heldout: 50 rooms "
         "per family x 4 goals); results per family with 95%% bootstrap CIs in RUN/eval/<NAME>/",
     )
+    p.add_argument(
+        "--memory-budget",
+        default=None,
+        metavar="SIZE",
+        help="refuse an evaluation whose estimated memory exceeds SIZE, e.g. 4G (default: the available memory)",
+    )
     p.set_defaults(func=_evaluate)
 
 
@@ -196,8 +237,13 @@ def add_render(sub) -> None:
     p = sub.add_parser("render", help="draw playgrounds with a short random-policy trajectory")
     p.add_argument("worlds", nargs="*", help="world names or files (default: every shipped world)")
     p.add_argument("--out", default="runs/render", help="output folder for the PNGs")
-    p.add_argument("--steps", type=positive_int, default=300, help="random-policy steps to draw")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--steps",
+        type=bounded_int(1, MAX_RENDER_STEPS),
+        default=300,
+        help=f"random-policy steps to draw (at most {MAX_RENDER_STEPS:,})",
+    )
+    p.add_argument("--seed", type=bounded_int(*SEED_RANGE), default=0)
     p.set_defaults(func=_render)
 
 

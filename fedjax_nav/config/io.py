@@ -45,7 +45,8 @@ def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: 
             raise ConfigError(f"{src}: {show(item)} is not of the form key=value (e.g. ddpg.gamma=0.99)")
         key, raw = item.split("=", 1)
         key = key.strip()
-        value = parse_yaml(raw, f"{src} {shorten(key) if key.isprintable() else show(key)}")  # a key with a newline: its repr
+        label = shorten(key) if key.isprintable() else show(key)  # a key with a newline: its repr (one line)
+        value = parse_yaml(raw, f"{src} {label}")
         parts = key.split(".")
         if len(parts) == 1 and parts[0] in TOP_LEVEL:  # method=..., learner=...
             data[parts[0]] = value

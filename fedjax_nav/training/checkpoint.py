@@ -48,6 +48,9 @@ class Checkpointer:
         _silence()
         _quiet_abandoned_reads()
         self.dir = Path(run_dir).absolute() / rundir.CHECKPOINTS
+        if self.dir.is_symlink() and not self.dir.exists() or self.dir.exists() and not self.dir.is_dir():
+            # a file (or a dangling link) there: every save would fail, after the episodes were trained
+            raise rundir.RunDirError(f"{self.dir}: exists and is not a directory (the run's checkpoints folder)")
         self.writer = process in (None, 0)
         if self.writer:
             _remove_unfinished(self.dir)  # a save cut short by a kill: never to be completed

@@ -77,12 +77,7 @@ def train(
     args = (cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer, from_checkpoint)
     if not writer:
         return _train(*args)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise rundir.RunDirError(f"{out}: exists and is not a directory") from None
-    except OSError as e:
-        raise rundir.WriteError(f"{out}: cannot create the run directory ({e.strerror or e})") from None
+    rundir.make_folder(out, "run directory")
     with RunLock(out):
         return _train(*args)
 
