@@ -6,6 +6,7 @@ non-zero biases), so nothing is trained here. Measured differences are printed (
 and quoted in docs/export.md.
 """
 
+import errno
 import importlib.util
 import json
 import math
@@ -25,6 +26,7 @@ from fedjax_nav import worlds  # noqa: E402
 from fedjax_nav.agents.networks import Actor  # noqa: E402
 from fedjax_nav.config import from_dict, save_config  # noqa: E402
 from fedjax_nav.deploy import export as ex  # noqa: E402
+from fedjax_nav.deploy import onnx_graph  # noqa: E402
 from fedjax_nav.env import NavEnv, lidar, make_params, nearest_distance  # noqa: E402
 from fedjax_nav.evaluation import actor_policy, load_run  # noqa: E402
 
@@ -182,7 +184,7 @@ def test_every_activation_numpy_and_onnx(activation):
     assert d_np <= TOL, msg
     ort = pytest.importorskip("onnxruntime")
     sess = ort.InferenceSession(
-        ex.onnx_model(weights, activation).SerializeToString(), providers=["CPUExecutionProvider"]
+        onnx_graph.onnx_model(weights, activation).SerializeToString(), providers=["CPUExecutionProvider"]
     )
     d_onnx = float(np.abs(sess.run(["action"], {"obs": obs})[0] - ref).max())
     print(msg + f", onnx max |diff| = {d_onnx:.3g}")
@@ -514,3 +516,17 @@ def test_cli_bad_input_in_a_subprocess_is_one_line(tmp_path):
     )
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "no such run directory" in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("err,code", [(errno.ENOSPC, 4), (errno.EROFS, 4), (errno.ENOTDIR, 2), (errno.ELOOP, 2)])
+def test_a_failed_write_is_exit_4_and_a_bad_out_path_exit_2(monkeypatch, tmp_path, capsys, err, code):
+    """A full or read-only --out is a failed write (4, as train's), not bad input (2)."""
+    import argparse
+
+    def fail(*a, **k):
+        raise OSError(err, os.strerror(err), str(tmp_path / "out"))
+
+    monkeypatch.setattr(ex, "export_run", fail)
+    args = argparse.Namespace(run_dir=tmp_path, out=tmp_path / "out", format="numpy", seed=None, agent=None)
+    assert ex.run_cli(args) == code
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
