@@ -79,6 +79,15 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
 
 
+def _tensorboard_flag(p: argparse.ArgumentParser) -> None:
+    """--tensorboard, of the commands that train (train, sweep)."""
+    p.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+    )
+
+
 def _batch_flags(p: argparse.ArgumentParser) -> None:
     """The flags of the commands that train batches of runs (sweep, reproduce)."""
     p.add_argument(
@@ -95,11 +104,7 @@ def _batch_flags(p: argparse.ArgumentParser) -> None:
         help="spread each batch of runs over N devices (default: all; on CPU one per core)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--tensorboard",
-        action="store_true",
-        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
-    )
+    _tensorboard_flag(p)
 
 
 def _device_flags(p: argparse.ArgumentParser) -> None:
@@ -179,11 +184,7 @@ def add_train(sub) -> None:
         help="refuse a run whose estimated memory exceeds SIZE, e.g. 8G (default: the available memory)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument(
-        "--tensorboard",
-        action="store_true",
-        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
-    )
+    _tensorboard_flag(p)
     _device_flags(p)
     p.set_defaults(func=_train)
 

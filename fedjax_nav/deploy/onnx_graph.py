@@ -18,8 +18,9 @@ import json
 
 import numpy as np
 
+from fedjax_nav.deploy.policy_template import INPUT_LAYER  # the layer whose kernel's rows are the observation
+
 ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat: runtimes from 2022 on read it
-INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}  # its kernel's rows: the observation
 ONNX_IR_VERSION = 8  # the IR version of opset 17 (onnx would stamp its newest, which older runtimes refuse)
 
 
