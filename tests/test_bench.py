@@ -48,12 +48,13 @@ def test_a_train_row_names_procedural_rooms():
 
 def test_a_learner_row_counts_every_environment_and_its_gradient_steps():
     tiny = ("env.episode_length=8", "env.worlds=[train-0, train-2]", "ppo.hidden=8", "ppo.rollout=4")
-    rows = bench.bench_learners((*tiny, "env.envs_per_robot=3"), rows=(("ppo", ()),), env_batch=6)
-    train, env = rows
-    assert train["learner"] == "ppo" and train["envs_per_robot"] == 3 and train["gflops"] is None
+    rows = bench.bench_learners((*tiny, "env.envs_per_robot=3"), rows=(("ppo", ()),), env_batch=6, brax=False)
+    train, env, env_procedural = rows
+    assert train["learner"] == "ppo" and train["envs_per_robot"] == 3 and train["gflops"] > 0
     # agent-steps: 2 robots x 3 environments x 8 steps in one episode; PPO: 2 updates x 4 epochs x 4 minibatches
     assert train["agent_steps_per_s"] * train["episode_s"] == pytest.approx(2 * 3 * 8)
     assert train["agent_updates_per_s"] * train["episode_s"] == pytest.approx(2 * 2 * 4 * 4)
     text = bench.format_rows(rows)
     assert "train flddpg (ppo) | 1 seed(s) x 2 robots x 3 environments" in text and "gradient steps/s" in text
-    assert "GFLOP/s" not in text and env["batch"] == 6
+    assert "GFLOP/s" in text and env["batch"] == env_procedural["batch"] == 6
+    assert env["rooms"] == "thesis rooms" and env_procedural["rooms"] == "procedural mixture rooms"

@@ -9,8 +9,10 @@ train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per ro
        1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then the other
        learners with many environments per robot (`env.envs_per_robot`): feed-forward PPO with
        5 robots x 256 environments in procedural rooms, SAC and TD3 with 5 x 64, and the env alone
-       at PPO's batch (1280). Their gradient steps per second count PPO's epochs x minibatches and
-       the off-policy `gradient_steps` per update event; FLOP/s are counted for DDPG only.
+       at PPO's batch (1280) in the thesis rooms and in procedural rooms, and brax's own PPO at
+       that batch. Their gradient steps per second count PPO's epochs x minibatches and the
+       off-policy `gradient_steps` per update event; FLOP/s are the matmuls of every update and
+       every action, counted on the learner's own jaxprs (experiments/flops.py).
 sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped program (the
        per-run cost of `fedjax-nav sweep`).
 
@@ -20,6 +22,7 @@ markdown file (docs/benchmarks.md).
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import sys
@@ -49,14 +52,27 @@ def matmul_ceiling(n: int = 2048, repeat: int = 5) -> float:
     return 2 * n**3 / _time(f, a, b, repeat=repeat) / 1e9
 
 
-def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> list[dict]:
+def procedural_rooms(family: str = "mixture", n: int = 64):
+    """`n` training-stream rooms of a family (stacked World), as `env.rooms: procedural` draws them."""
+    from fedjax_nav.worlds import procedural, suites
+    from fedjax_nav.worlds.rooms import RoomSpec
+
+    keys = jax.vmap(suites.train_room_key)(jnp.arange(n))
+    return procedural.generate_batch(keys, RoomSpec(family=family))
+
+
+def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None, family: str | None = None) -> list[dict]:
+    """Env-only agent-steps/s over the named worlds (the thesis's training rooms by default), or
+    over 64 procedural rooms of `family`."""
     from fedjax_nav import worlds
     from fedjax_nav.env import NavEnv, make_params
 
-    names = worlds_ or worlds.THESIS_TRAIN
-    world = worlds.load_many(names)
+    if family is None:
+        names = worlds_ or worlds.THESIS_TRAIN
+        world, n, label = worlds.load_many(names), len(names), "thesis rooms" if worlds_ is None else "worlds"
+    else:
+        world, n, label = procedural_rooms(family), 64, f"procedural {family} rooms"
     env = NavEnv()
-    n = len(names)
 
     def rollout(key, params):
         k0, k1 = jax.random.split(key)
@@ -80,7 +96,16 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
         keys = jax.random.split(jax.random.key(0), b)
         f = jax.jit(jax.vmap(rollout))
         t = _time(f, keys, params)
-        rows.append({"bench": "env", "batch": b, "devices": 1, "steps": steps, "agent_steps_per_s": b * steps / t})
+        rows.append(
+            {
+                "bench": "env",
+                "batch": b,
+                "devices": 1,
+                "steps": steps,
+                "rooms": label,
+                "agent_steps_per_s": b * steps / t,
+            }
+        )
         if ndev > 1 and b % ndev == 0 and b >= 64:
             # The same program with the batch split over one CPU device per core (shard_map).
             from jax.sharding import NamedSharding
@@ -99,7 +124,14 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None) -> li
             )
             t = _time(g, put(keys), jax.tree.map(put, params))
             rows.append(
-                {"bench": "env", "batch": b, "devices": ndev, "steps": steps, "agent_steps_per_s": b * steps / t}
+                {
+                    "bench": "env",
+                    "batch": b,
+                    "devices": ndev,
+                    "steps": steps,
+                    "rooms": label,
+                    "agent_steps_per_s": b * steps / t,
+                }
             )
     return rows
 
@@ -112,14 +144,21 @@ def _train_config(overrides, learner: str = "ddpg"):
     return from_dict({**apply_overrides(data, list(overrides)), "learner": learner})
 
 
+def update_events(cfg, episodes: int) -> int:
+    """Update events of one network in `episodes` episodes (PPO: one per rollout; off-policy: one
+    every ddpg.train_every steps)."""
+    from fedjax_nav.config import ON_POLICY_LEARNERS
+
+    every = cfg.ppo.rollout if cfg.learner in ON_POLICY_LEARNERS else cfg.ddpg.train_every
+    return cfg.env.episode_length // every * episodes
+
+
 def gradient_steps(cfg, nets: int, episodes: int) -> int:
     """Gradient steps of every network in `episodes` episodes (update events x steps per event)."""
     from fedjax_nav.config import ON_POLICY_LEARNERS
 
-    T = cfg.env.episode_length
-    if cfg.learner in ON_POLICY_LEARNERS:
-        return nets * (T // cfg.ppo.rollout) * cfg.ppo.epochs * cfg.ppo.minibatches * episodes
-    return nets * (T // cfg.ddpg.train_every) * cfg.ddpg.gradient_steps * episodes
+    per_event = cfg.ppo.epochs * cfg.ppo.minibatches if cfg.learner in ON_POLICY_LEARNERS else cfg.ddpg.gradient_steps
+    return nets * update_events(cfg, episodes) * per_event
 
 
 def bench_train(
@@ -135,7 +174,7 @@ def bench_train(
     default when N is a multiple of the cores), or with `shard="clients"` the robots (padded
     with masked clients to a multiple of `devices`: one thesis seed, 5 robots, as 3 + 3).
     agent-steps count every environment's steps (robots x env.envs_per_robot)."""
-    from fedjax_nav.agents.ddpg import update_flops
+    from fedjax_nav.experiments.flops import learner_flops
     from fedjax_nav.training.hparams import hparams_from_config
     from fedjax_nav.training.trainer import Trainer
 
@@ -162,15 +201,17 @@ def bench_train(
         T, N = cfg.env.episode_length, tr.n_real  # the padding clients' work is not counted
         agent_steps = s * N * cfg.env.envs_per_robot * T * episodes
         updates = s * gradient_steps(cfg, tr.n_real if tr.pad else tr.n_nets, episodes)
-        gflops = None
-        if cfg.learner == "ddpg":  # the one learner whose FLOPs are counted (agents.ddpg.update_flops)
-            flops = updates * update_flops(tr.obs_size, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
-            gflops = flops / dt / 1e9
+        # Matmul FLOPs counted on the learner's own jaxprs (experiments.flops): every update event
+        # of every network, and the acting of every environment step.
+        n_nets = tr.n_real if tr.pad else tr.n_nets
+        per_event, per_act = learner_flops(tr.learner, tr.nets, tr.obs_size, tr.writes, hp)
+        flops = s * n_nets * update_events(cfg, episodes) * per_event + agent_steps * per_act
+        gflops = flops / dt / 1e9
         rows.append(
             {
                 "bench": "train",
                 "method": cfg.method,
-                "learner": cfg.learner,
+                "learner": cfg.learner + ("-gru" if cfg.learner == "ppo" and cfg.ppo.recurrent == "gru" else ""),
                 "envs_per_robot": cfg.env.envs_per_robot,
                 "seeds": s,
                 "robots": N,
@@ -197,20 +238,91 @@ def bench_train(
 # The other learners with many environments per robot (docs/learners.md): feed-forward PPO with
 # 5 x 256 environments in procedural rooms (rollout 128 x 256 = 32768 rows per robot and update),
 # SAC and TD3 with 5 x 64 (a buffer of 100k rows per robot, one gradient step per update event).
+PROCEDURAL = ("env.rooms=procedural", "env.room_families=[mixture]")
 LEARNER_ROWS = (
-    ("ppo", ("env.envs_per_robot=256", "env.rooms=procedural", "env.room_families=[mixture]")),
-    ("sac", ("env.envs_per_robot=64", "ddpg.buffer_size=100000")),
-    ("td3", ("env.envs_per_robot=64", "ddpg.buffer_size=100000")),
+    ("ppo", ("env.envs_per_robot=256", *PROCEDURAL)),
+    ("ppo", ("env.envs_per_robot=256", "ppo.recurrent=gru", *PROCEDURAL)),
+    ("sac", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
+    ("td3", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
 )
 
 
-def bench_learners(overrides=(), rows=LEARNER_ROWS, env_batch: int = 1280) -> list[dict]:
-    """`bench train` rows of the learners beside DDPG, and the env alone at PPO's batch."""
+def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 6)):
+    """brax's own `ppo.train` on this project's brax env (the thesis's training rooms, one per
+    environment in turn), with the batch of the PPO row: `num_envs` environments, `rollout`-step
+    unrolls, `epochs` x `minibatches`, the same 64x2 tanh networks. brax's `training/sps` of an
+    epoch includes a fixed cost per epoch (about 6 s here, whatever the epoch's length), so it is
+    run with two epoch lengths (`updates` training steps per epoch) and the steady rate is the
+    difference of steps over the difference of epoch times; brax's own figure for the longer epoch
+    is reported beside it."""
+    from brax import envs as brax_envs
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo
+    from flax import linen
+
+    from fedjax_nav import worlds
+    from fedjax_nav.env import brax_env  # noqa: F401  (registers the env)
+
+    env = brax_envs.get_environment(brax_env.ENV_NAME, worlds=list(worlds.THESIS_TRAIN))
+    per_update = num_envs * rollout
+    net = functools.partial(
+        ppo_networks.make_ppo_networks,
+        policy_hidden_layer_sizes=(64, 64),
+        value_hidden_layer_sizes=(64, 64),
+        activation=linen.tanh,
+    )
+    epoch_s, sps = [], []
+    for u in updates:
+        walls: list[float] = []
+
+        def progress(step, metrics, walls=walls):
+            if "training/walltime" in metrics:
+                walls.append(float(metrics["training/walltime"]))
+                sps.append(float(metrics["training/sps"]))
+
+        ppo.train(
+            env,
+            num_timesteps=per_update * u * 2,  # two epochs of u training steps (num_evals - 1)
+            num_evals=3,
+            episode_length=1024,
+            num_envs=num_envs,
+            unroll_length=rollout,
+            batch_size=num_envs // minibatches,
+            num_minibatches=minibatches,
+            num_updates_per_batch=epochs,
+            normalize_observations=False,
+            run_evals=False,
+            num_resets_per_eval=0,
+            network_factory=net,
+            progress_fn=progress,
+        )
+        epoch_s.append(walls[-1] - walls[-2])  # the second epoch: compiled in the first
+    steady = per_update * (updates[1] - updates[0]) / (epoch_s[1] - epoch_s[0])
+    return [
+        {
+            "bench": "brax_ppo",
+            "num_envs": num_envs,
+            "rollout": rollout,
+            "agent_steps_per_s": steady,
+            "brax_sps": sps[-1],
+            "epoch_fixed_s": epoch_s[0] - per_update * updates[0] / steady,
+        }
+    ]
+
+
+def bench_learners(
+    overrides=(), rows=LEARNER_ROWS, env_batch: int = 1280, ceiling: float | None = None, brax: bool = True
+) -> list[dict]:
+    """`bench train` rows of the learners beside DDPG, and at PPO's batch the env alone (in the
+    thesis rooms and in the procedural rooms the learners train in) and brax's PPO."""
     out = []
     for learner, extra in rows:
-        out += bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner)
+        out += bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner, ceiling=ceiling)
     if env_batch:
         out += bench_env(batches=(env_batch,), steps=200)
+        out += bench_env(batches=(env_batch,), steps=200, family="mixture")
+    if env_batch and brax:
+        out += bench_brax_ppo(num_envs=env_batch, updates=(2, 6) if env_batch >= 1024 else (4, 12))
     return out
 
 
@@ -314,7 +426,9 @@ def format_rows(rows: list[dict]) -> str:
     for r in rows:
         if r["bench"] == "env":
             lines.append(
-                f"| env | batch {r['batch']}, {r['devices']} device(s) | {r['agent_steps_per_s']:,.0f} agent-steps/s |"
+                f"| env | batch {r['batch']}, {r['devices']} device(s), {r.get('rooms', 'thesis rooms')}, "
+                "random actions | "
+                f"{r['agent_steps_per_s']:,.0f} agent-steps/s |"
             )
         elif r["bench"] == "sweep":
             lines.append(
@@ -330,6 +444,12 @@ def format_rows(rows: list[dict]) -> str:
                     f"{r['sweep_devices_s']:.1f} s ({r['sweep_devices_s'] / r['points']:.1f} s per run): "
                     f"{r['sweep_devices_speedup']:.2f}x one by one |"
                 )
+        elif r["bench"] == "brax_ppo":
+            lines.append(
+                f"| brax ppo.train | {r['num_envs']} environments x {r['rollout']}-step unrolls, thesis rooms | "
+                f"{r['agent_steps_per_s']:,.0f} agent-steps/s steady (epochs of two lengths differenced; "
+                f"brax's own training/sps {r['brax_sps']:,.0f}, with a fixed {r['epoch_fixed_s']:.1f} s per epoch) |"
+            )
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
@@ -376,7 +496,7 @@ def main(args) -> int:
             rooms = ", ".join(f"train-{[0, 2, 3, 4, 5][i % 5]}" for i in range(robots))
             rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, f"env.worlds=[{rooms}]"))
         small = (*over, "env.envs_per_robot=4", "ppo.rollout=32") if quick else ()
-        rows += bench_learners(small, env_batch=64 if quick else 1280)
+        rows += bench_learners(small, env_batch=64 if quick else 1280, ceiling=ceiling, brax=not quick)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
     if what in ("sweep", "all"):
         over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
