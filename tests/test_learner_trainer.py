@@ -232,11 +232,21 @@ def test_ppo_rollout_keeps_a_timeout_apart_and_bootstraps_there(runs):
         (["ppo.minibatches=3"], "ppo", "flddpg", r"ppo.minibatches \(3\) must divide ppo.rollout x env.envs_per_robot"),
         (["ppo.recurrent=gru", "ppo.minibatches=2", "env.envs_per_robot=3"], "ppo", "flddpg", "env.envs_per_robot"),
         (["ppo.recurrent=gru"], "td3", "flddpg", r"ppo.recurrent \('gru'\) needs learner: ppo"),
-        ([], "ppo", "seddpg", "method seddpg shares one replay buffer"),
-        ([], "ppo", "snddpg", "method snddpg shares one network and one replay buffer"),
+        ([], "ppo", "seddpg", "method seddpg shares one replay buffer between the robots' own networks"),
     ],
 )
 def test_config_refuses_what_a_learner_cannot_do(extra, learner, method, match):
     with pytest.raises(ConfigError, match=match) as e:
         make_cfg(learner, method, extra)
     assert "\n" not in str(e.value)
+
+
+def test_a_central_ppo_learner_is_one_network_over_every_robots_environments():
+    # snddpg with PPO: one policy acts in all 2 robots x 2 environments and learns from one
+    # rollout of all of them (the central learner of docs/generalization.md)
+    r = Run(make_cfg("ppo", "snddpg", ["env.envs_per_robot=2"]))
+    tr, st, m = r.tr, r.states, r.metrics
+    assert tr.n_nets == 1 and tr.n_bufs == 1 and tr.num_envs == 4
+    assert st.buffers.reward.shape == (1, 1, ROLLOUT, 4) and np.all(np.asarray(st.buffers.obs).any(-1))
+    assert m["policy_loss"].shape == (1, 2, 1) and np.all(m["policy_loss"][:, 1] != 0)  # the rollout ends in episode 2
+    assert np.all(m["params_finite"]) and m["goals"].shape == (1, 2, 2)  # still counted per robot

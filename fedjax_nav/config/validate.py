@@ -200,19 +200,24 @@ def _check_learner(cfg: Config, src: str) -> None:
     from fedjax_nav.methods import METHODS
 
     p, method = cfg.ppo, METHODS[cfg.method]
-    if cfg.learner in ON_POLICY_LEARNERS and (method.shared_network or method.shared_buffer):
-        what = "one network and one replay buffer" if method.shared_network else "one replay buffer"
+    # One shared network with its one buffer (snddpg) is one central on-policy learner over every
+    # robot's environments; a shared buffer under separate networks (seddpg) would train each
+    # network on the others' actions, which an on-policy learner cannot.
+    if cfg.learner in ON_POLICY_LEARNERS and method.shared_buffer and not method.shared_network:
         raise ConfigError(
-            f"{src}: method {cfg.method} shares {what} between the robots; learner {cfg.learner} learns "
-            "on-policy from each robot's own rollout and cannot (use iddpg, or a federated method)"
+            f"{src}: method {cfg.method} shares one replay buffer between the robots' own networks; learner "
+            f"{cfg.learner} learns on-policy from its own policy's rollout and cannot (use iddpg, snddpg or a "
+            "federated method)"
         )
     if p.recurrent != "none" and cfg.learner != "ppo":
         raise ConfigError(f"{src}: ppo.recurrent ({p.recurrent!r}) needs learner: ppo (learner is {cfg.learner!r})")
     if cfg.learner == "ppo":
-        n = cfg.env.envs_per_robot
+        # the environments of one rollout: a robot's, or every robot's under one shared network
+        n = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_network else 1)
         # a GRU's minibatches are whole sequences: they split the environments, not the rows
         recurrent = p.recurrent != "none"
-        rows, what = (n, "env.envs_per_robot") if recurrent else (p.rollout * n, "ppo.rollout x env.envs_per_robot")
+        per = "env.envs_per_robot" + (" x robots" if method.shared_network else "")
+        rows, what = (n, per) if recurrent else (p.rollout * n, f"ppo.rollout x {per}")
         if rows % p.minibatches:
             raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
 
