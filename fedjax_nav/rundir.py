@@ -344,5 +344,11 @@ def goal_share(df, last: int = 25) -> float:
     training success (a robot reached at least one goal in the episode: `reached_goal`) is 1 as soon
     as one of its environments succeeds once; this share is what its environments actually did."""
     tail = df[df["episode"] >= int(df["episode"].max()) + 1 - last]
-    ended = float(tail["goals"].sum() + tail["collisions"].sum())
-    return float(tail["goals"].sum()) / ended if ended else float("nan")
+    return share_of_goals(tail["goals"], tail["collisions"])
+
+
+def share_of_goals(goals, collisions) -> float:
+    """goals / (goals + collisions) over arrays of counts (NaN when nothing ended): `goal_share`'s
+    rule, also for the progress bars' raw chunk metrics."""
+    g, ended = float(np.sum(goals)), float(np.sum(goals) + np.sum(collisions))
+    return g / ended if ended else float("nan")

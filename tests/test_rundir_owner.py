@@ -130,3 +130,14 @@ def test_both_resume_checks_refuse_through_the_one_function(calls, tmp_path, cap
     assert cli_line.split(" differs from ")[0] == train_line.split(" differs from ")[0] == config + ":"
     assert cli_line.split(" in ddpg.gamma")[1] == train_line.split(" in ddpg.gamma")[1], (cli_line, train_line)
     assert str(tmp_path / rundir.CHECKPOINTS / "4") in train_line
+
+
+def test_the_goal_share_is_goals_over_ended_attempts_for_a_frame_and_for_raw_counts():
+    import numpy as np
+    import pandas as pd
+
+    df = pd.DataFrame({"episode": [0, 0, 1, 1], "goals": [3, 0, 1, 1], "collisions": [1, 0, 2, 0]})
+    assert rundir.goal_share(df, last=1) == 2 / 4  # episode 1 only
+    assert rundir.goal_share(df, last=2) == 5 / 8
+    assert rundir.share_of_goals(np.array([[3, 0]]), np.array([[1, 0]])) == 0.75  # the bars' chunk arrays
+    assert np.isnan(rundir.share_of_goals(np.zeros(3), np.zeros(3)))  # nothing ended

@@ -259,7 +259,11 @@ def _loop(run: _Run, chunk, states, hp: HParams, metrics, start: int, all_df, pr
             if tb is not None:  # live scalars of this chunk's episodes
                 tb.episodes(all_df[all_df.episode >= first])
             last = all_df[all_df.episode == done - 1]
-            bar.set_postfix(success=f"{last.reached_goal.mean():.2f}", reward=f"{last.reward.mean():.3f}")
+            bar.set_postfix(
+                success=f"{last.reached_goal.mean():.2f}",
+                goal_share=f"{rundir.share_of_goals(last.goals, last.collisions):.2f}",  # what the environments did
+                reward=f"{last.reward.mean():.3f}",
+            )
             bar.update(K)
             if (every and done % every == 0) or done == cfg.run.episodes or sigint.caught:
                 tk = time.time()

@@ -126,7 +126,10 @@ def run_batch(
                     rows = {key: v[lo : lo + k] for key, v in metrics.items()}
                     write_point(points_dir, pre, trainer, _slice(states, lo, k), rows, extra)
             bar.update(K)
-            bar.set_postfix(success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}")
+            bar.set_postfix(
+                success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}",
+                goal_share=f"{rundir.share_of_goals(m['goals'][:, -1], m['collisions'][:, -1]):.2f}",
+            )
             if every and done % every == 0 and done < E:
                 ckpt.save(done, jax.tree.map(jnp.copy, states), metrics)  # a copy: states get donated next
     finally:
