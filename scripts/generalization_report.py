@@ -6,9 +6,16 @@ docs/img/generalization/.
     fedjax-nav sweep generalization --out runs/sweeps/generalization      # train (resumable)
     python scripts/generalization_report.py runs/sweeps/generalization    # report on what has finished
     python scripts/generalization_report.py runs/sweeps/generalization --sweep generalization_levers
+
+After the report it prints the tail of the held-out suite per point (docs/generalization.md, "Tail
+metrics"): over all rooms the success, the worst 10 % of rooms, the collision and time-out rates and
+the median path-length ratio (columns of <name>.csv; points evaluated before the tail: "-").
 """
 
 import argparse
+from pathlib import Path
+
+import pandas as pd
 
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
@@ -28,8 +35,9 @@ ap.add_argument("--no-eval", action="store_true", help="tables from what is alre
 ap.add_argument("--results", default="results", help="copy the tables here ('' = no copy)")
 ap.add_argument("--figures", default="docs/img/generalization", help="copy the figures here ('' = no copy)")
 a = ap.parse_args()
+sweep = load_sweep(a.sweep)
 report(
-    load_sweep(a.sweep),
+    sweep,
     a.out,
     suite=a.suite,
     suite_attempts=a.suite_attempts,
@@ -38,3 +46,18 @@ report(
     copy_tables=a.results or None,
     copy_figures=a.figures or None,
 )
+
+table = Path(a.out) / f"{sweep.name}.csv"
+TAIL = {
+    "all": "success",
+    "all_worst10": "worst 10%",
+    "all_collision": "collision",
+    "all_timeout": "time-out",
+    "all_path_ratio_median": "path ratio",
+}
+t = pd.read_csv(table) if table.exists() and table.stat().st_size > 1 else pd.DataFrame()
+if len(t):
+    names = ["label"] if "label" in t and t.duplicated(["method", "rooms", "episodes"]).any() else []
+    shown = t.reindex(columns=[*names, "method", "rooms", "episodes", *TAIL]).rename(columns=TAIL)
+    print(f"held-out suite {a.suite}, all rooms (the tail):")
+    print(shown.to_string(index=False, float_format=lambda x: f"{x:.3f}", na_rep="-"))

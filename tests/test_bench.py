@@ -3,7 +3,7 @@
 import pytest
 
 from fedjax_nav.agents.ddpg import update_flops
-from fedjax_nav.experiments import bench
+from fedjax_nav.experiments import bench, bench_learners
 
 
 def test_env_bench_reports_throughput():
@@ -48,7 +48,7 @@ def test_a_train_row_names_procedural_rooms():
 
 def test_a_learner_row_counts_every_environment_and_its_gradient_steps():
     tiny = ("env.episode_length=8", "env.worlds=[train-0, train-2]", "ppo.hidden=8", "ppo.rollout=4")
-    rows = bench.bench_learners((*tiny, "env.envs_per_robot=3"), rows=(("ppo", ()),), env_batch=6, brax=False)
+    rows = bench_learners.bench_learners((*tiny, "env.envs_per_robot=3"), rows=(("ppo", ()),), env_batch=6, brax=False)
     train, env, env_procedural = rows
     assert train["learner"] == "ppo" and train["envs_per_robot"] == 3 and train["gflops"] > 0
     # agent-steps: 2 robots x 3 environments x 8 steps in one episode; PPO: 2 updates x 4 epochs x 4 minibatches

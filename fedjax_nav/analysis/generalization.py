@@ -10,6 +10,12 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
     goal(table, families)               the issue's goal per procedurally trained point
     figure(table, families, path)       success per family and in the arena, with seed CIs
     probe_curves / probe_figure         the held-out probe during training (run.eval_every)
+
+The tail of the held-out suite (docs/generalization.md, "Tail metrics") rides along where the
+suite's files hold it (evaluations written before it existed simply lack those columns):
+`<family>_worst10` (mean success of the worst 10 % of rooms) with its interval over rooms
+(`<family>_worst10_ci_low/high`), `<family>_collision`, `<family>_timeout` and
+`<family>_path_ratio_median`.
 """
 
 from __future__ import annotations
@@ -25,6 +31,9 @@ from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.config.sweepfile import Sweep
 
 ARENA = "eval"  # the thesis's evaluation world
+# suite_families.csv columns copied per family into `table` (the first five as they always were)
+FAMILY_COLUMNS = ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "ci_rooms_high")
+TAIL_COLUMNS = ("worst10", "worst10_ci_low", "worst10_ci_high", "collision", "timeout", "path_ratio_median")
 GOAL_ARENA, GOAL_FAMILY = 0.90, 0.85  # the issue's goal: arena and every held-out family
 
 
@@ -47,7 +56,7 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
     """One row per finished point: training success (last 25 episodes, mean and std over seeds),
     the training goal share (`rundir.goal_share`), arena success (all agents; std over seeds), and per
     held-out family the success with the 95% bootstrap interval over training seeds (`ci_seeds_*`)
-    and over rooms (`ci_rooms_*`)."""
+    and over rooms (`ci_rooms_*`), and its tail (`TAIL_COLUMNS`) where the suite's files hold it."""
     rows = []
     for p, s in finished(sweep, Path(points_dir)):
         d = Path(points_dir) / p.id
@@ -73,8 +82,9 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             row.update(arena=a["success_rate"], arena_seed_std=a["success_seed_std"])
         fam = _suite_families(rundir.eval_dir(d, suite))
         if fam is not None:
+            tail = [c for c in TAIL_COLUMNS if c in fam.columns]
             for _, f in fam.iterrows():
-                for col in ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "ci_rooms_high"):
+                for col in (*FAMILY_COLUMNS, *tail):
                     row[f"{f.family}_{col}" if col != "success" else f.family] = f[col]
         rows.append(row)
     return pd.DataFrame(rows)
@@ -82,7 +92,9 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
 
 def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
     """One row per point and training seed: training success, arena success and each family's
-    success of that seed's agents (the numbers the seed intervals are taken over)."""
+    success of that seed's agents (the numbers the seed intervals are taken over); where the
+    suite's episodes hold them, each family's worst 10 % of rooms (`<family>_worst10`, over that
+    seed's agents), collision and time-out rates."""
     rows = []
     for p, s in finished(sweep, Path(points_dir)):
         d = Path(points_dir) / p.id
@@ -92,7 +104,7 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
             arena = ev["all_agents"]["success_per_seed"]
         eps = rundir.eval_dir(d, suite) / rundir.SUITE_EPISODES
         if eps.exists():
-            fams = pd.read_csv(eps).groupby(["seed", "family"])["success"].mean().unstack()
+            fams = _seed_families(pd.read_csv(eps))
         for seed, train in enumerate(s["success_last_per_seed"]):
             row = {"point": p.id, "label": p.label, "method": p.cfg.method, "learner": p.cfg.learner}
             row["rooms"] = rooms(p.cfg)
@@ -104,9 +116,33 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
     return pd.DataFrame(rows)
 
 
+def worst_rooms(per_room) -> float:
+    """The mean of the lowest ceil(10 %) of the rooms' success (at least one room): the statistic
+    of `evaluation.suite.worst_mean`, which analysis may not import (one layer); a test holds the
+    two equal."""
+    x = np.sort(np.asarray(per_room, np.float64))
+    return float(x[: max(1, int(np.ceil(0.1 * len(x) - 1e-9)))].mean()) if len(x) else float("nan")
+
+
+def _seed_families(ep: pd.DataFrame) -> pd.DataFrame:
+    """Per training seed (index), per family: the success (column <family>), and where the
+    episodes hold them <family>_worst10, <family>_collision, <family>_timeout."""
+    out = [ep.groupby(["seed", "family"])["success"].mean().unstack()]
+    for col in ("collision", "timeout"):
+        if col in ep:
+            out.append(ep.groupby(["seed", "family"])[col].mean().unstack().add_suffix(f"_{col}"))
+    if "room" in ep:
+        rooms = ep.groupby(["seed", "family", "room"])["success"].mean()
+        out.append(rooms.groupby(["seed", "family"]).agg(worst_rooms).unstack().add_suffix("_worst10"))
+    return pd.concat(out, axis=1)
+
+
 def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
     """The table as strings for docs: training success and arena as mean +- std over seeds, each
-    held-out family (and all rooms) as mean [95% bootstrap interval over training seeds]."""
+    held-out family (and all rooms) as mean [95% bootstrap interval over training seeds]; where the
+    table holds the tail, each family's (and all rooms') worst 10 % of rooms as mean [95% bootstrap
+    interval over rooms], and over all rooms the collision and time-out rates and the median
+    path-length ratio."""
 
     def pm(m, sd):
         return "-" if not np.isfinite(m) else f"{m:.3f} +- {sd:.3f}"
@@ -115,6 +151,18 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
         m, lo, hi = r.get(f, np.nan), r.get(f"{f}_ci_seeds_low", np.nan), r.get(f"{f}_ci_seeds_high", np.nan)
         return "-" if not np.isfinite(m) else f"{m:.3f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{m:.3f}"
 
+    def worst(r, f):
+        m, lo, hi = (
+            r.get(f"{f}_worst10", np.nan),
+            r.get(f"{f}_worst10_ci_low", np.nan),
+            r.get(f"{f}_worst10_ci_high", np.nan),
+        )
+        return "-" if not np.isfinite(m) else f"{m:.3f} [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) else f"{m:.3f}"
+
+    def num(x):
+        return "-" if not np.isfinite(x) else f"{x:.3f}"
+
+    tail = any(c.endswith("_worst10") for c in t.columns)
     rows = []
     for _, r in t.iterrows():
         row = {"method": r.method.upper(), "learner": r.get("learner", "ddpg"), "rooms": r.rooms}
@@ -125,6 +173,11 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
             row["goal share, last 25"] = "-" if not np.isfinite(r.train_goal_share) else f"{r.train_goal_share:.3f}"
         row["arena"] = pm(r.arena, r.arena_seed_std)
         row.update({f: ci(r, f) for f in [*families, "all"]})
+        if tail:
+            row.update({f"{f} worst 10%": worst(r, f) for f in [*families, "all"]})
+            row["collision (all)"] = num(r.get("all_collision", np.nan))
+            row["time-out (all)"] = num(r.get("all_timeout", np.nan))
+            row["path ratio (all)"] = num(r.get("all_path_ratio_median", np.nan))
         rows.append(row)
     out = pd.DataFrame(rows)
     if len(t) and not t.duplicated(["method", "learner", "rooms", "episodes"]).any():

@@ -253,7 +253,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from fedjax_nav.experiments.bench import main as bench_main
+    from fedjax_nav.experiments.bench_run import main as bench_main
 
     return bench_main(args)
 

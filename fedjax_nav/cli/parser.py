@@ -220,9 +220,11 @@ def add_evaluate(sub) -> None:
     p.add_argument(
         "--suite",
         default=None,
-        metavar="NAME",
+        metavar="NAME|DIR",
         help="evaluate on a held-out suite of generated rooms instead of --world (e.g. heldout: 50 rooms "
-        "per family x 4 goals); results per family with 95%% bootstrap CIs in RUN/eval/<NAME>/",
+        "per family x 4 goals), or on every world file of a folder or a quoted glob ('maps/*.yaml'; each "
+        "file a family, named by its stem); results per family with 95%% bootstrap CIs and the tail (worst "
+        "10%% of rooms, collision and time-out rates, path-length ratio) in RUN/eval/<NAME or folder name>/",
     )
     p.add_argument(
         "--memory-budget",

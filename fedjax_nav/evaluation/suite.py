@@ -1,24 +1,32 @@
-"""Evaluation on a held-out suite of generated rooms (`fedjax-nav evaluate RUN --suite NAME`;
-docs/generalization.md).
+"""Evaluation on a held-out suite of rooms (`fedjax-nav evaluate RUN --suite NAME`, or
+`--suite DIR` / `--suite 'GLOB'` for the user's own world files; docs/generalization.md).
 
-Every agent of the run drives in every room of the suite (`fedjax_nav.worlds.suites`: rooms from
-the test stream of room seeds, never used by training) from start 0 to every goal of the room,
-`attempts` times, with the protocol of `rollout.py` (greedy actor, noisy ranges and actions, the
-run's env settings, time-out T); all rooms run in one jitted, vmapped program.
+Every agent of the run drives in every room of the suite (a named one, `fedjax_nav.worlds.suites`:
+generated rooms from the test stream of room seeds, never used by training; or every world file of
+a folder or glob, padded to one shape, its file name stem as its family) from start 0 to every goal
+of the room, `attempts` times, with the protocol of `rollout.py` (greedy actor, noisy ranges and
+actions, the run's env settings, time-out T); all rooms run in one jitted, vmapped program.
 
 Results per family: the success rate with a 95 % bootstrap confidence interval
 (`scipy.stats.bootstrap`, percentile method, 10,000 resamples, fixed random state) over the room
 seeds (the sample unit of the held-out set: each room's success averaged over its agents, goals
 and attempts), and the per-training-seed success with a bootstrap interval over the training seeds
-when there are at least two. Written to RUN/eval/<suite>/ through fedjax_nav.rundir:
-`suite.json` (everything), `suite_families.csv` (one row per family, and "all"), `suite_episodes.csv`
-(one row per room x agent x goal x attempt).
+when there are at least two. The tail (docs/generalization.md, "Tail metrics"): the mean success
+of the worst 10 % of rooms (rooms ranked by their success, with a bootstrap interval over rooms),
+the collision and time-out rates, and the median path-length ratio of the successful episodes
+(driven path / the shortest safe path into the goal disk, `evaluation.paths`, computed on the host
+while the rollout runs). Written to RUN/eval/<suite>/ (a file suite: RUN/eval/<its folder's name>/)
+through fedjax_nav.rundir: `suite.json` (everything), `suite_families.csv` (one row per family, and
+"all"), `suite_episodes.csv` (one row per room x agent x goal x attempt).
 """
 
 from __future__ import annotations
 
+import glob
 import json
+import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -28,23 +36,44 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
+from fedjax_nav import worlds as _worlds
 from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
+from fedjax_nav.evaluation import paths
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
 from fedjax_nav.evaluation.runs import greedy_policy, load_run
 from fedjax_nav.worlds import WorldError
-from fedjax_nav.worlds.suites import suite_names, suite_rooms
+from fedjax_nav.worlds.input_files import show
+from fedjax_nav.worlds.suites import SUITE_GROUPS, SUITES, suite_names, suite_rooms
 
 SUITE_JSON = "suite.json"
 FAMILIES_CSV = "suite_families.csv"
 EPISODES_CSV = "suite_episodes.csv"
 RESAMPLES = 10_000
+WORST = 0.10  # the tail: the worst 10 % of rooms
+WORLD_SUFFIXES = (".json", ".yaml", ".yml")  # the world files of a folder (worlds.load's formats)
+TAIL = (
+    "worst10: mean success of the worst ceil(10%) of rooms (rooms ranked by their success over agents, "
+    "goals, attempts), worst10_ci_* its 95% percentile bootstrap interval over rooms; collision, timeout: "
+    "shares of episodes; path_ratio_median: median over successful episodes of path_length / shortest_path "
+    "(the shortest path from the start into the goal disk keeping the collision distance: an 8-connected "
+    "grid search, then the string pulled tight with exact clearance checks; fedjax_nav.evaluation.paths)"
+)
 
 
-def bootstrap_ci(x, confidence: float = 0.95, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of the mean of `x` (scipy.stats.bootstrap); (nan, nan)
-    for fewer than two values, (m, m) when every value is m."""
+def worst_mean(x, axis: int = -1):
+    """The mean of the lowest ceil(WORST * n) of the n values along `axis` (at least one): the
+    worst 10 % of rooms' success. Vectorised over the other axes (scipy.stats.bootstrap)."""
+    x = np.sort(np.asarray(x, np.float64), axis=axis)
+    k = max(1, math.ceil(WORST * x.shape[axis] - 1e-9))
+    return np.take(x, np.arange(k), axis=axis).mean(axis=axis)
+
+
+def bootstrap_ci(x, confidence: float = 0.95, seed: int = 0, statistic=np.mean) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of `statistic` (default the mean; vectorised, with an
+    `axis` argument) of `x` (scipy.stats.bootstrap); (nan, nan) for fewer than two values, (m, m)
+    when every value is m."""
     from scipy import stats
 
     x = np.asarray(x, np.float64)
@@ -54,13 +83,89 @@ def bootstrap_ci(x, confidence: float = 0.95, seed: int = 0) -> tuple[float, flo
         return float(x[0]), float(x[0])
     res = stats.bootstrap(
         (x,),
-        np.mean,
+        statistic,
         confidence_level=confidence,
         n_resamples=RESAMPLES,
         method="percentile",
         random_state=np.random.default_rng(seed),
     )
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def is_file_suite(suite: str) -> bool:
+    """Whether `--suite` names world files (a folder, a glob, a path) rather than a named suite: a
+    suite or group name wins; otherwise a glob character, a path separator or an existing path."""
+    if suite in SUITES or suite in SUITE_GROUPS:
+        return False
+    try:
+        exists = Path(suite).exists()
+    except (OSError, ValueError):  # a NUL byte, an over-long name: not a path, so a name (refused as one)
+        exists = False
+    return any(c in suite for c in "*?[/\\") or exists
+
+
+def suite_folder(suite: str) -> str:
+    """The folder name of an evaluation on `suite` under RUN/eval/: a named suite's name; a file
+    suite's folder (a folder's own name; a glob's or a file's: the folder holding it)."""
+    if not is_file_suite(suite):
+        return suite
+    p = Path(suite)
+    if not p.is_dir():
+        head = []
+        for part in p.parts[:-1]:
+            if any(c in part for c in "*?["):
+                break
+            head.append(part)
+        p = Path(*head) if head else Path(".")
+    return p.resolve().name or "suite"
+
+
+def world_files(suite: str) -> list[Path]:
+    """The world files of a file suite, sorted: a folder's regular files named *.json, *.yaml, *.yml
+    (not recursive), or those among a glob's matches. None: an EvalError naming the folder or glob."""
+    p = Path(suite)
+    try:
+        folder = p.is_dir()
+        found = p.iterdir() if folder else (Path(f) for f in glob.glob(suite))
+        files = sorted(f for f in found if f.suffix.lower() in WORLD_SUFFIXES and f.is_file())
+    except (OSError, ValueError) as e:  # a folder that cannot be listed, a NUL byte, an over-long name
+        why = getattr(e, "strerror", None) or type(e).__name__
+        msg = f"--suite {show(suite, 240)}: cannot be read as a folder or glob of world files ({why})"
+        raise EvalError(msg) from None
+    if not files:
+        kinds = ", ".join(f"*{x}" for x in WORLD_SUFFIXES)
+        where = "in this folder" if folder else "matches this folder, glob or file"
+        raise EvalError(f"--suite {show(suite, 240)}: no world file ({kinds}) {where}")
+    return files
+
+
+def file_suite(suite: str) -> tuple:
+    """The rooms of a folder or glob of world files as one stacked World (`worlds.stack`: padded to
+    one shape), each room's family (its file name stem; the file name where two stems are equal),
+    room seeds (-1: none) and the files. A file that does not load: an EvalError naming it."""
+    files = world_files(suite)
+    try:
+        loaded = [_worlds.load(f) for f in files]
+    except WorldError as e:
+        raise EvalError(str(e)) from None
+    stems = [f.stem for f in files]
+    fams = np.asarray([f.stem if stems.count(f.stem) == 1 else f.name for f in files])
+    return _worlds.stack(loaded), fams, np.full(len(files), -1, np.int64), [str(f) for f in files]
+
+
+def _check_suite(suite: str) -> list[str]:
+    """The suites of a name, or the files of a file suite; an EvalError (one line) for neither."""
+    if is_file_suite(suite):
+        return [str(f) for f in world_files(suite)]
+    try:
+        return list(suite_names(suite))
+    except WorldError as e:
+        raise EvalError(f"{e}; or a folder or glob of world files") from None
+
+
+def _timed(fn, *args):
+    t = time.time()
+    return fn(*args), time.time() - t
 
 
 def evaluate_suite(
@@ -73,17 +178,20 @@ def evaluate_suite(
     max_steps: int | None = None,
     memory_budget: int | None = None,
 ) -> dict:
-    """The protocol of a run on every room of `suite`; returns {"summary", "families", "episodes"}.
+    """The protocol of a run on every room of `suite` (a suite or group name, or a folder / glob of
+    world files: `is_file_suite`); returns {"summary", "families", "episodes"}.
     An evaluation whose estimate (`limits.eval_memory`: rooms x agents x goals x attempts) exceeds
-    `memory_budget` bytes (default: the memory available now) is refused before it is allocated."""
+    `memory_budget` bytes (default: the memory available now) is refused before it is allocated.
+    The shortest safe paths (`paths.shortest_paths`) are computed on the host in a thread while the
+    rollout runs."""
     check_counts(attempts, max_steps)
-    try:
-        suite_names(suite)
-    except WorldError as e:
-        raise EvalError(str(e)) from None
+    members = _check_suite(suite)
     run = load_run(run_dir)
     cfg, e = run.cfg, run.cfg.env
-    world, families, room_seeds = suite_rooms(suite)
+    if is_file_suite(suite):
+        world, families, room_seeds, members = file_suite(suite)
+    else:
+        world, families, room_seeds = suite_rooms(suite)
     R, G = world.goals.shape[:2]
     A, K = run.num_agents, int(attempts) * run.num_robots // run.n_nets
     T = int(max_steps or e.episode_length)
@@ -97,13 +205,27 @@ def evaluate_suite(
     check_eval_memory(settings, state, (R, A, G, K), min(CHUNK, T), int(attempts), memory_budget, str(run.run_dir))
     program = eval_program(settings, policy, min(CHUNK, T))
     keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
-    t0 = time.time()
-    rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
-    out = jax.device_get(rooms(run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))  # [R, A, G, K]
-    wall = time.time() - t0
+    # the collision distance the env tests (a modelled robot's footprint replaces it when set)
+    clearance = float(
+        values["footprint"] if settings.get("robot") and values["footprint"] > 0 else values["collision_distance"]
+    )
+    with ThreadPoolExecutor(1) as pool:
+        shortest = pool.submit(
+            _timed, paths.shortest_paths, jax.device_get(world), clearance, float(values["goal_radius"])
+        )
+        t0 = time.time()
+        rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
+        out = jax.device_get(rooms(run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))  # [R, A, G, K]
+        wall = time.time() - t0
+        (sp, sp_s), waited = shortest.result(), time.time() - t0 - wall
     valid = np.arange(G)[None, :] < np.asarray(world.num_goals)[:, None]  # [R, G]
     r, a, g, k = np.meshgrid(np.arange(R), np.arange(A), np.arange(G), np.arange(K), indexing="ij")
     keep = valid[r, g].ravel()
+    success = out["success"].ravel().astype(int)
+    path = out["path"].ravel().astype(np.float64)
+    shortest_m = sp[r.ravel(), g.ravel()]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where((success == 1) & (shortest_m > 0), path / shortest_m, np.nan)
     ep = pd.DataFrame(
         {
             "room": r.ravel(),
@@ -114,11 +236,13 @@ def evaluate_suite(
             "byzantine": run.agent_byzantine[a.ravel()].astype(int),
             "goal": g.ravel(),
             "attempt": k.ravel(),
-            "success": out["success"].ravel().astype(int),
+            "success": success,
             "collision": out["collision"].ravel().astype(int),
             "timeout": out["timeout"].ravel().astype(int),
             "steps": out["steps"].ravel(),
             "path_length": out["path"].ravel(),
+            "shortest_path": shortest_m,
+            "path_ratio": ratio,
         }
     )[keep].reset_index(drop=True)
     fams = pd.DataFrame(
@@ -131,7 +255,7 @@ def evaluate_suite(
         "run_dir": str(run.run_dir),
         "method": cfg.method,
         "suite": suite,
-        "suites": list(suite_names(suite)),
+        "suites": members,
         "rooms": int(R),
         "agents": int(A),
         "attempts_requested": int(attempts),  # as in eval.json; one-network methods drive K = attempts x robots
@@ -146,6 +270,15 @@ def evaluate_suite(
         "ci": "95% percentile bootstrap (scipy.stats.bootstrap, 10,000 resamples) of the mean success: "
         "ci_rooms over room seeds (each room's success averaged over agents, goals, attempts), "
         "ci_seeds over training seeds (each seed's agents averaged)",
+        "tail": TAIL,
+        "shortest_path": {
+            "clearance": clearance,
+            "goal_radius": float(values["goal_radius"]),
+            "grid_m": paths.RES,
+            "no_path": int(np.sum(valid & ~np.isfinite(sp))),  # (room, goal) pairs without a safe grid path
+            "host_s": sp_s,  # seconds of the search, in a thread beside the rollout
+            "waited_s": waited,  # what it added to the evaluation after the rollout ended
+        },
         "families": fams.to_dict(orient="records"),
         "wall_s": wall,
     }
@@ -153,10 +286,13 @@ def evaluate_suite(
 
 
 def _family_row(name: str, ep: pd.DataFrame) -> dict:
-    per_room = ep.groupby("room_seed")["success"].mean().to_numpy()
+    per_room = ep.groupby("room")["success"].mean().to_numpy()
     per_seed = ep.groupby("seed")["success"].mean().to_numpy()
     lo_r, hi_r = bootstrap_ci(per_room)
     lo_s, hi_s = bootstrap_ci(per_seed)
+    lo_w, hi_w = bootstrap_ci(per_room, statistic=worst_mean)
+    ratio = ep["path_ratio"].to_numpy(np.float64)
+    ratio = ratio[np.isfinite(ratio)]
     return {
         "family": name,
         "rooms": int(len(per_room)),
@@ -171,6 +307,12 @@ def _family_row(name: str, ep: pd.DataFrame) -> dict:
         "timeout": float(ep["timeout"].mean()),
         # the honest agents' success when the run had Byzantine robots (fed.byzantine), else NaN
         "success_honest": float(ep.loc[ep.byzantine == 0, "success"].mean()) if ep.byzantine.any() else float("nan"),
+        "worst10": float(worst_mean(per_room)) if len(per_room) else float("nan"),
+        "worst10_rooms": max(1, math.ceil(WORST * len(per_room) - 1e-9)) if len(per_room) else 0,
+        "worst10_ci_low": lo_w,
+        "worst10_ci_high": hi_w,
+        "path_ratio_median": float(np.median(ratio)) if len(ratio) else float("nan"),
+        "path_ratio_episodes": int(len(ratio)),
     }
 
 
@@ -190,7 +332,7 @@ def write_suite(result: dict, out: str | Path) -> list[Path]:
 def kept_suite(run_dir: str | Path, suite: str, attempts: int = ATTEMPTS) -> dict | None:
     """RUN/eval/<suite>/suite.json if it was evaluated with `attempts` asked (files written before
     `attempts_requested` was kept: their attempts per agent), else None."""
-    f = rundir.eval_dir(run_dir, suite) / SUITE_JSON
+    f = rundir.eval_dir(run_dir, suite_folder(suite)) / SUITE_JSON
     if not f.exists():
         return None
     s = json.loads(f.read_text())
@@ -203,7 +345,7 @@ def evaluated_suite(run_dir: str | Path, suite: str, attempts: int = ATTEMPTS) -
     kept = kept_suite(run_dir, suite, attempts)
     if kept is not None:
         return kept, False
-    write_suite(evaluate_suite(run_dir, suite, attempts=attempts), rundir.eval_dir(run_dir, suite))
+    write_suite(evaluate_suite(run_dir, suite, attempts=attempts), rundir.eval_dir(run_dir, suite_folder(suite)))
     return kept_suite(run_dir, suite, attempts), True
 
 
@@ -219,12 +361,13 @@ def evaluate_suite_runs(
     echo: Callable[[str], None] = print,
     memory_budget: int | None = None,
 ) -> dict:
-    """What `fedjax-nav evaluate RUN... --suite NAME` does: each run into RUN/eval/<suite>/ (or
-    `out` for one run), a table per run. Returns {run_dir: summary}."""
+    """What `fedjax-nav evaluate RUN... --suite NAME|DIR|GLOB` does: each run into
+    RUN/eval/<suite_folder(suite)>/ (or `out` for one run), a table per run. Returns {run_dir: summary}."""
     results = {}
+    _check_suite(suite)  # a bad name or an empty folder: one line before any run is loaded
     for run_dir in run_dirs:
         res = evaluate_suite(run_dir, suite, attempts, range_noise, action_noise, seed, max_steps, memory_budget)
-        dest = Path(out) if out is not None and len(run_dirs) == 1 else rundir.eval_dir(run_dir, suite)
+        dest = Path(out) if out is not None and len(run_dirs) == 1 else rundir.eval_dir(run_dir, suite_folder(suite))
         paths = write_suite(res, dest)
         s = res["summary"]
         echo(
@@ -241,8 +384,10 @@ def evaluate_suite_runs(
                     "ci_rooms_high",
                     "ci_seeds_low",
                     "ci_seeds_high",
+                    "worst10",
                     "collision",
                     "timeout",
+                    "path_ratio_median",
                 ]
             ].to_string(index=False, float_format="%.3f")
         )

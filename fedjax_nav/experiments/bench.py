@@ -3,11 +3,11 @@
 env:   env-only agent-steps/s (random actions, one jitted lax.scan) at batch 1, 64, 1024, 4096
        over the thesis's training rooms (24 beams, every obstacle).
 train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per robot), timed after
-       compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of the DDPG updates against
+       compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of its updates and actions against
        the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of the
        whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput), and
-       1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then the other
-       learners with many environments per robot (`env.envs_per_robot`): feed-forward PPO with
+       1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then
+       (experiments/bench_learners.py) the other learners with many environments per robot (`env.envs_per_robot`): feed-forward PPO with
        5 robots x 256 environments in procedural rooms, SAC and TD3 with 5 x 64, and the env alone
        at PPO's batch (1280) in the thesis rooms and in procedural rooms, and brax's own PPO at
        that batch. Their gradient steps per second count PPO's epochs x minibatches and the
@@ -16,16 +16,14 @@ train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per ro
 sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped program (the
        per-run cost of `fedjax-nav sweep`).
 
-Results print as a table; `--record FILE` appends them, with machine, versions and command, to a
+Results print as a table (experiments/bench_run.py runs the rows); `--record FILE` appends them, with machine, versions and command, to a
 markdown file (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
-import functools
 import os
 import platform
-import sys
 import time
 
 import jax
@@ -235,97 +233,6 @@ def bench_train(
     return rows
 
 
-# The other learners with many environments per robot (docs/learners.md): feed-forward PPO with
-# 5 x 256 environments in procedural rooms (rollout 128 x 256 = 32768 rows per robot and update),
-# SAC and TD3 with 5 x 64 (a buffer of 100k rows per robot, one gradient step per update event).
-PROCEDURAL = ("env.rooms=procedural", "env.room_families=[mixture]")
-LEARNER_ROWS = (
-    ("ppo", ("env.envs_per_robot=256", *PROCEDURAL)),
-    ("ppo", ("env.envs_per_robot=256", "ppo.recurrent=gru", *PROCEDURAL)),
-    ("sac", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
-    ("td3", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
-)
-
-
-def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 6)):
-    """brax's own `ppo.train` on this project's brax env (the thesis's training rooms, one per
-    environment in turn), with the batch of the PPO row: `num_envs` environments, `rollout`-step
-    unrolls, `epochs` x `minibatches`, the same 64x2 tanh networks. brax's `training/sps` of an
-    epoch includes a fixed cost per epoch (about 6 s here, whatever the epoch's length), so it is
-    run with two epoch lengths (`updates` training steps per epoch) and the steady rate is the
-    difference of steps over the difference of epoch times; brax's own figure for the longer epoch
-    is reported beside it."""
-    from brax import envs as brax_envs
-    from brax.training.agents.ppo import networks as ppo_networks
-    from brax.training.agents.ppo import train as ppo
-    from flax import linen
-
-    from fedjax_nav import worlds
-    from fedjax_nav.env import brax_env  # noqa: F401  (registers the env)
-
-    env = brax_envs.get_environment(brax_env.ENV_NAME, worlds=list(worlds.THESIS_TRAIN))
-    per_update = num_envs * rollout
-    net = functools.partial(
-        ppo_networks.make_ppo_networks,
-        policy_hidden_layer_sizes=(64, 64),
-        value_hidden_layer_sizes=(64, 64),
-        activation=linen.tanh,
-    )
-    epoch_s, sps = [], []
-    for u in updates:
-        walls: list[float] = []
-
-        def progress(step, metrics, walls=walls):
-            if "training/walltime" in metrics:
-                walls.append(float(metrics["training/walltime"]))
-                sps.append(float(metrics["training/sps"]))
-
-        ppo.train(
-            env,
-            num_timesteps=per_update * u * 2,  # two epochs of u training steps (num_evals - 1)
-            num_evals=3,
-            episode_length=1024,
-            num_envs=num_envs,
-            unroll_length=rollout,
-            batch_size=num_envs // minibatches,
-            num_minibatches=minibatches,
-            num_updates_per_batch=epochs,
-            normalize_observations=False,
-            run_evals=False,
-            num_resets_per_eval=0,
-            network_factory=net,
-            progress_fn=progress,
-        )
-        epoch_s.append(walls[-1] - walls[-2])  # the second epoch: compiled in the first
-    steady = per_update * (updates[1] - updates[0]) / (epoch_s[1] - epoch_s[0])
-    return [
-        {
-            "bench": "brax_ppo",
-            "num_envs": num_envs,
-            "rollout": rollout,
-            "agent_steps_per_s": steady,
-            "brax_sps": sps[-1],
-            "epoch_fixed_s": epoch_s[0] - per_update * updates[0] / steady,
-        }
-    ]
-
-
-def bench_learners(
-    overrides=(), rows=LEARNER_ROWS, env_batch: int = 1280, ceiling: float | None = None, brax: bool = True
-) -> list[dict]:
-    """`bench train` rows of the learners beside DDPG, and at PPO's batch the env alone (in the
-    thesis rooms and in the procedural rooms the learners train in) and brax's PPO."""
-    out = []
-    for learner, extra in rows:
-        out += bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner, ceiling=ceiling)
-    if env_batch:
-        out += bench_env(batches=(env_batch,), steps=200)
-        out += bench_env(batches=(env_batch,), steps=200, family="mixture")
-    if env_batch and brax:
-        out += bench_brax_ppo(num_envs=env_batch, updates=(2, 6) if env_batch >= 1024 else (4, 12))
-    return out
-
-
 def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 2) -> list[dict]:
     """A grid of `points` tau values x 1 seed of the thesis FLDDPG preset: the runs one by one (one
     compiled program, batch 1, tau a traced scalar) against one vmapped batch of `points` rows (what
@@ -471,45 +378,3 @@ def format_rows(rows: list[dict]) -> str:
                 f"compile ~{r['compile_s']:.1f} s (first call minus a steady one) |"
             )
     return "\n".join(lines)
-
-
-def main(args) -> int:
-    what = getattr(args, "what", "env")
-    quick = getattr(args, "quick", False)
-    rows: list[dict] = []
-    if what in ("env", "all"):
-        rows += bench_env(batches=(1, 64) if quick else (1, 64, 1024, 4096), steps=20 if quick else 200)
-    if what in ("train", "all"):
-        ceiling = matmul_ceiling(512 if quick else 2048)
-        rows.append({"bench": "ceiling", "gflops": ceiling})
-        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
-        rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=over)
-        if not quick:  # right after it: the same run drawing a fresh procedural room per robot and episode
-            proc = ("env.rooms=procedural", "env.room_families=[mixture]")
-            rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, *proc))
-            rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over)
-        n_dev = jax.local_device_count()
-        if n_dev > 1 and not quick:  # the default fast path of `train --seeds 8` on this machine
-            rows += bench_train(seeds=(8,), ceiling=ceiling, overrides=over, devices=n_dev)
-        # scaling with the number of clients: 1 and 40 robots (the thesis's rooms repeated), one seed
-        for robots in (1,) if quick else (1, 40):
-            rooms = ", ".join(f"train-{[0, 2, 3, 4, 5][i % 5]}" for i in range(robots))
-            rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=(*over, f"env.worlds=[{rooms}]"))
-        small = (*over, "env.envs_per_robot=4", "ppo.rollout=32") if quick else ()
-        rows += bench_learners(small, env_batch=64 if quick else 1280, ceiling=ceiling, brax=not quick)
-        rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
-    if what in ("sweep", "all"):
-        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
-        rows += bench_sweep(points=2 if quick else 4, episodes=1 if quick else 2, overrides=over)
-    table = format_rows(rows)
-    print(table)
-    record = getattr(args, "record", None)
-    if record:
-        cmd = "fedjax-nav bench " + " ".join(sys.argv[2:]) if sys.argv[0].endswith("fedjax-nav") else " ".join(sys.argv)
-        with open(record, "a") as f:
-            f.write(
-                f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `{cmd}`\n\nMachine: {machine()}\n\n"
-                f"| what | setting | result |\n|---|---|---|\n{table}\n"
-            )
-        print(f"appended to {record}")
-    return 0

@@ -2,7 +2,7 @@
 folder with Fig. 11-20, Tables 2 and 3, and a markdown report putting each measured number beside
 the thesis's.
 
-    reproduce("ci", "runs/reproduce-ci")         # reduced: 10 episodes x 64 steps, 2 seeds
+    reproduce("ci", "runs/reproduce-ci")         # reduced: 10 episodes x 64 steps, 2 seeds, small rooms
     reproduce("thesis", "runs/reproduce-thesis")  # the thesis's scale: many hours on a 2-core CPU
 
 The experiments are the sweep files of configs/sweeps/ (EXPERIMENTS). Their points are pooled and
@@ -19,7 +19,9 @@ Report folder:
     table2_hyperparameters.{csv,md}, table3_communication.{csv,md}
     eval_summary.csv             one row per evaluated run
     experiments/<name>/          results.csv (tidy), summary.csv, sweep.yaml, learning_curves.png
-    points/<id>/                 the runs: config.yaml, metrics.csv, summary.json, params.npz, eval/eval/eval.json
+    points/<id>/                 the runs: config.yaml, metrics.csv, summary.json, params.npz,
+                                 eval/<arena>/eval.json (the thesis arena: eval/eval/; ci scale: eval/ci-arena/)
+    ci-arena.json                the ci scale's evaluation room (written by the ci scale only)
 """
 
 from __future__ import annotations
@@ -73,12 +75,28 @@ class Scale:
     buffer_scale: float
     seeds: int | None  # None: each sweep file's own count
     attempts: int  # evaluation attempts per agent and goal
+    arena: dict | None = None  # the evaluation world: None, the thesis arena ("eval"); else a world spec
 
+
+# The ci scale's evaluation room: 4 goals from one start, as in the thesis arena, but 2 cylinders
+# inside 4 walls where the arena has 36 wall segments and 21 cylinders. The lidar and collision
+# tests are unrolled over the obstacles, so compilation time grows with them (3x for one evaluation).
+CI_ARENA = {
+    "name": "ci-arena",
+    "description": "the evaluation room of `reproduce --scale ci` (6 x 6 m, 2 cylinders, 4 goals)",
+    "size": [6.0, 6.0],
+    "circles": [[-1.0, 0.0, 0.3], [1.0, 0.0, 0.3]],
+    "starts": [[0.0, -2.0, 1.5708]],
+    "goals": [[-2.0, 2.0], [2.0, 2.0], [-2.0, -1.5], [2.0, -1.5]],
+}
 
 SCALES = {
     "thesis": Scale("thesis", (), 1.0, None, 4),
     # 10 episodes so that E_update = 10 still aggregates; 64 x 10 steps >= T_update = 512; buffers
     # x 0.02 so that they wrap in 640 steps as the thesis's wrap in 128k; batch 32 <= every buffer.
+    # Five robots, all in the smallest training room (train-0: 4 walls, 1 cylinder; the thesis rooms
+    # have up to 48 segments and 12 cylinders) and evaluated in CI_ARENA: the programme's time is
+    # compilation, which grows with the obstacles of the rooms.
     "ci": Scale(
         "ci",
         (
@@ -87,12 +105,23 @@ SCALES = {
             "run.chunk_episodes=5",
             "run.checkpoint_every=0",
             "ddpg.batch_size=32",
+            "env.worlds=[train-0,train-0,train-0,train-0,train-0]",
         ),
         0.02,
         2,
         1,
+        CI_ARENA,
     ),
 }
+
+
+def arena_world(scale: Scale, out: Path) -> str:
+    """The world the scale evaluates on: "eval", or its arena written to OUT/<name>.json (a path)."""
+    if scale.arena is None:
+        return "eval"
+    path = out / f"{scale.arena['name']}.json"
+    rundir.atomic_write(path, lambda p: Path(p).write_text(json.dumps(scale.arena, indent=1) + "\n"))
+    return str(path)
 
 
 def load_experiments(scale: Scale, only=None, seeds: int | None = None, overrides=()) -> list[Sweep]:
@@ -115,9 +144,12 @@ def load_experiments(scale: Scale, only=None, seeds: int | None = None, override
 # ----------------------------------------------------------------------------- evaluation
 
 
-def evaluate_points(sweeps: list[Sweep], points_dir: Path, attempts: int, echo: Callable) -> pd.DataFrame:
-    """Evaluate every point of the experiments marked `evaluate` on the thesis arena (kept in the
-    point's `eval/eval/` folder and reused when the same attempts were asked for). One row per point."""
+def evaluate_points(
+    sweeps: list[Sweep], points_dir: Path, attempts: int, echo: Callable, world: str = "eval"
+) -> pd.DataFrame:
+    """Evaluate every point of the experiments marked `evaluate` on `world`, by default the thesis
+    arena (kept in the point's `eval/<world>/` folder and reused when the same attempts were asked
+    for). One row per point."""
     from fedjax_nav.evaluation import evaluated
 
     rows, seen = [], set()
@@ -129,7 +161,7 @@ def evaluate_points(sweeps: list[Sweep], points_dir: Path, attempts: int, echo: 
             if p.id in seen or not (d / rundir.PARAMS).exists():
                 continue
             seen.add(p.id)
-            ev, now = evaluated(d, "eval", attempts)
+            ev, now = evaluated(d, world, attempts)
             if now:
                 echo(
                     f"evaluated {p.cfg.method} ({p.id}): success {ev['all_agents']['overall']['success_rate']:.3f}"
@@ -191,7 +223,8 @@ def reproduce(
     for s in sweeps:
         write_tables(s, points, experiment_dir(out, s.name))
     t1 = time.time()
-    evals = evaluate_points(sweeps, points, sc.attempts, echo)
+    world = arena_world(sc, out)
+    evals = evaluate_points(sweeps, points, sc.attempts, echo, world)
     t_eval = time.time() - t1
     rundir.atomic_write(out / "eval_summary.csv", lambda p: evals.to_csv(p, index=False))
     by_name = {s.name: s for s in sweeps}
@@ -219,6 +252,7 @@ def reproduce(
         "train_wall_s": t_train,
         "eval_wall_s": t_eval,
         "eval_attempts": sc.attempts,
+        "eval_world": rundir.world_slug(world),
         "figures": [p.name for p in figs],
         "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
         "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, {platform.python_version()}",
