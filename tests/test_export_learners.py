@@ -1,10 +1,12 @@
 """`fedjax-nav export` of the learners beside DDPG (deploy/export.py's EXPORTS): SAC's and
-feed-forward PPO's squashed mean, recurrent PPO's GRU with its hidden state, in numpy
-(policy.py's `Policy`) and ONNX, against the learner's own `greedy` (agents.learners).
+feed-forward PPO's squashed mean, recurrent PPO's GRU with its hidden state, each PPO kind also
+with its observation normaliser (ppo.normalize_obs), in numpy (policy.py's `Policy`) and ONNX,
+against the learner's own `greedy` (agents.learners).
 
 Each run directory is written directly (config.yaml + params.npz of the learner's initial actor
 with every leaf perturbed (`_perturb`), so that biases are non-zero and the small policy head does not hide
-the trunk), so nothing is trained here; tests/test_learner_runs.py exports trained runs.
+the trunk; a normaliser's statistics are those of a few hundred observations, other ones per robot),
+so nothing is trained here; tests/test_learner_runs.py exports trained runs.
 """
 
 import importlib.util
@@ -18,7 +20,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from fedjax_nav.agents import learners  # noqa: E402
+from fedjax_nav.agents import learners, normalize, ppo  # noqa: E402
 from fedjax_nav.config import from_dict, save_config, traced_fields, values  # noqa: E402
 from fedjax_nav.deploy import export as ex  # noqa: E402
 from fedjax_nav.evaluation import load_run  # noqa: E402
@@ -35,6 +37,11 @@ CASES = {
     "ppo-gru": {
         "learner": "ppo",
         "ppo": {"hidden": 16, "depth": 2, "activation": "tanh", "recurrent": "gru", "gru_hidden": 8, "minibatches": 1},
+    },
+    "ppo-norm": {"learner": "ppo", "ppo": {"hidden": 16, "depth": 2, "activation": "tanh", "normalize_obs": True}},
+    "ppo-gru-norm": {
+        "learner": "ppo",
+        "ppo": {"hidden": 16, "depth": 2, "recurrent": "gru", "gru_hidden": 8, "minibatches": 1, "normalize_obs": True},
     },
 }
 
@@ -77,11 +84,16 @@ def case(request, tmp_path_factory):
     nets = learner.make_nets(values(cfg))
     hp = {k: jnp.float32(v) for k, v in values(cfg).items() if k in traced_fields()}
     per = []
-    for k in jax.random.split(jax.random.key(11), 2):  # 1 seed x 2 robots
+    for i, k in enumerate(jax.random.split(jax.random.key(11), 2)):  # 1 seed x 2 robots
         actor = learner.policy(learner.init(nets, k, NUM_BEAMS + 4, hp))
-        leaves, tree = jax.tree.flatten(actor)
+        weights = ppo.weights(actor) if cfg.learner == "ppo" else actor
+        leaves, tree = jax.tree.flatten(weights)
         ks = jax.random.split(jax.random.fold_in(k, 1), len(leaves))
-        per.append(jax.tree.unflatten(tree, [_perturb(x, kk) for x, kk in zip(leaves, ks)]))
+        weights = jax.tree.unflatten(tree, [_perturb(x, kk) for x, kk in zip(leaves, ks)])
+        if ppo.NORM in actor:  # the statistics of some observations, other ones per robot
+            stats = normalize.update(normalize.init(NUM_BEAMS + 4), jnp.asarray(_obs(300, seed=20 + i)))
+            weights = {**weights, ppo.NORM: normalize.moments(stats)}
+        per.append(weights)
     stacked = jax.tree.map(lambda *xs: np.stack(xs)[None], *per)
     flat = {
         "actor/" + "/".join(str(getattr(k, "key", k)) for k in kp): np.asarray(leaf)
@@ -128,6 +140,8 @@ def test_numpy_export_acts_as_greedy(case, tmp_path):
     diff = float(np.abs(got - want).max())
     print(f"\n{name}: numpy export vs greedy, {N_SEQ} x {SEQ} steps: max |diff| = {diff:.3g}")
     assert got.dtype == np.float32 and diff <= TOL
+    assert ("obs_norm/mean" in np.load(tmp_path / "np" / "weights.npz")) == ("observation_normalization" in meta)
+    assert ("observation_normalization" in meta) == (cfg.learner == "ppo" and cfg.ppo.normalize_obs)
     if meta["network"]["kind"] == "gru":
         assert meta["network"]["gru"] == cfg.ppo.gru_hidden and "memory" in meta
         # the state is what carries: a policy reset at every step acts otherwise

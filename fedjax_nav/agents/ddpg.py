@@ -64,7 +64,8 @@ def epsilon_greedy(key: jax.Array, greedy: jax.Array, epsilon: jax.Array) -> jax
 
 
 def update(nets: Nets, agent: AgentState, batch: Transition, gamma, lr) -> tuple[AgentState, dict]:
-    """One gradient step of the critic, then of the actor (against the updated critic)."""
+    """One gradient step of the critic, then of the actor (against the updated critic). gamma:
+    f32[] or a discount per row f32[B] (n-step rows bootstrap with gamma^k: offpolicy.Batch)."""
     next_a = nets.actor.apply(agent.actor_targ, batch.next_obs)
     q_next = nets.critic.apply(agent.critic_targ, batch.next_obs, next_a)
     y = jax.lax.stop_gradient(batch.reward + gamma * (1.0 - batch.done) * q_next)

@@ -8,6 +8,8 @@ boundaries when ppo.rollout divides env.episode_length). `reset` is the trainer'
 (obs_t starts an episode: after the episode's reset, or after a goal or collision put the robot back
 at a start), `hidden` the GRU states before the rollout's first step. `terminated` and `truncated`
 come from the env apart: GAE bootstraps from V(next_obs) at a time-out (agents/ppo.py).
+Observations are stored raw; with ppo.normalize_obs the actor's statistics normalise them in
+`explore`, `greedy` and `update`, and `update` merges each rollout into them (agents/ppo.py).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ def make_nets(v: dict) -> OnPolicyNets:
         gru=v["ppo.gru_hidden"],
         epochs=v["ppo.epochs"],
         minibatches=v["ppo.minibatches"],
+        normalize_obs=v["ppo.normalize_obs"],
     )
     return OnPolicyNets(nets, v["ppo.rollout"])
 

@@ -18,8 +18,11 @@ buffer receives per step. `record` is a `Record` with a leading [rows] axis.
 
 Off-policy learners (DDPG, TD3, SAC) store 1-step rows in the replay buffer (`buffer.Transition`,
 `done` = terminated only, `next_obs` = the true last observation: a time-out bootstraps) and learn
-`gradient_steps` batches per update event. PPO (learner_ppo.py) keeps a rollout of `ppo.rollout`
-steps and learns from it when it is full.
+`gradient_steps` batches per update event. With `ddpg.n_step` = n > 1 the buffer also keeps the
+truncation flags (`buffer.EpisodeRows`) and a batch is n-step rows (`offpolicy.nstep` over
+`buffer.sample_windows`): n rewards of one environment summed, cut at an episode's end or at the
+newest row, bootstrapped with gamma^k (`offpolicy.Batch.discount`). PPO (learner_ppo.py) keeps a
+rollout of `ppo.rollout` steps and learns from it when it is full.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from fedjax_nav.agents import ddpg, ppo, sac, td3
 from fedjax_nav.agents import learner_ppo as lp
 from fedjax_nav.agents.networks import Critic
 from fedjax_nav.agents.networks_extra import SquashedGaussianActor
-from fedjax_nav.agents.offpolicy import one_step
+from fedjax_nav.agents.offpolicy import Batch, nstep, one_step
 
 
 class Record(NamedTuple):
@@ -97,13 +100,15 @@ class OffPolicyNets:
     batch_size: int = struct.field(pytree_node=False)
     gradient_steps: int = struct.field(pytree_node=False)  # per update event, each on its own batch
     buffer_rows: int = struct.field(pytree_node=False)  # allocated rows (the capacity is traced up to it)
+    n_step: int = struct.field(pytree_node=False, default=1)  # steps per target (ddpg.n_step)
 
 
 def _off_policy_nets(actor_cls):
     def make(v: dict) -> OffPolicyNets:
         h, d, a = v["ddpg.hidden"], v["ddpg.depth"], v["ddpg.activation"]
         rows = v["ddpg.buffer_alloc"] or v["ddpg.buffer_size"]
-        return OffPolicyNets(actor_cls(h, d, a), Critic(h, d, a), v["ddpg.batch_size"], v["ddpg.gradient_steps"], rows)
+        batch, steps, n = v["ddpg.batch_size"], v["ddpg.gradient_steps"], v["ddpg.n_step"]
+        return OffPolicyNets(actor_cls(h, d, a), Critic(h, d, a), batch, steps, rows, n)
 
     return make
 
@@ -113,13 +118,30 @@ def capacity(nets: OffPolicyNets, hp) -> jax.Array:
     return jnp.minimum(hp["ddpg.buffer_size"], nets.buffer_rows)
 
 
-def _replay(nets, obs_size: int, rows: int) -> rb.Transition:
-    return rb.init(nets.buffer_rows, obs_size)
+def _replay(nets, obs_size: int, rows: int) -> rb.Transition | rb.EpisodeRows:
+    """1-step rows, or with n_step > 1 the rows and their truncation flags."""
+    if nets.n_step == 1:
+        return rb.init(nets.buffer_rows, obs_size)
+    return rb.init_episode_rows(nets.buffer_rows, obs_size)
 
 
-def _store_replay(nets, buf: rb.Transition, rec: Record, g, rows: int, hp) -> rb.Transition:
+def _store_replay(nets, buf, rec: Record, g, rows: int, hp):
+    """Step g's rows at g * rows ... (g + 1) * rows - 1 (mod the capacity), in the record's order:
+    environment j's rows of consecutive steps lie `rows` positions apart."""
     t = rb.Transition(rec.obs, rec.action, rec.reward, rec.next_obs, rec.terminated.astype(jnp.float32))
-    return rb.add(buf, t, g * rows, capacity(nets, hp))
+    if nets.n_step == 1:
+        return rb.add(buf, t, g * rows, capacity(nets, hp))
+    return rb.add_episode_rows(buf, t, rec.truncated.astype(jnp.float32), g * rows, capacity(nets, hp))
+
+
+def sample_batch(nets, buf, key, count, cap, rows: int, gamma) -> Batch:
+    """A batch of nets.batch_size rows drawn uniformly from the `count` rows written (`cap` the
+    active capacity): 1-step rows (`one_step`), or with n_step > 1 n-step rows starting at the
+    same draws (`buffer.sample_windows`, `offpolicy.nstep`; rows: rows written per step)."""
+    if nets.n_step == 1:
+        return one_step(rb.sample(buf, key, nets.batch_size, count, cap), gamma)
+    windows, end = rb.sample_windows(buf, key, nets.batch_size, count, cap, nets.n_step, rows)
+    return jax.vmap(lambda w, e: nstep(w, e, gamma))(windows, end)
 
 
 def _ready(nets, g, rows: int):
@@ -133,14 +155,14 @@ def _due_replay(nets, g, rows: int, hp):
 
 def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
     """An update event: `gradient_steps` calls of grad_step(nets, state, sample, key, hp, i), where
-    sample(key) draws a fresh batch and i is the gradient step's index in the run (unbatched);
-    the losses averaged over them."""
+    sample(key) draws a fresh `offpolicy.Batch` (`sample_batch`) and i is the gradient step's index
+    in the run (unbatched); the losses averaged over them."""
 
     def update(nets, state, buf, key, g, rows: int, hp):
         count, cap, n = (g + 1) * rows, capacity(nets, hp), nets.gradient_steps
 
         def sample(k):
-            return rb.sample(buf, k, nets.batch_size, count, cap)
+            return sample_batch(nets, buf, k, count, cap, rows, hp["ddpg.gamma"])
 
         def one(state, k, i):
             state, losses = grad_step(nets, state, sample, k, hp, i)
@@ -157,21 +179,23 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
 
 
 def _ddpg_step(nets, state, sample, key, hp, i):
-    return ddpg.update(nets, state, sample(key), hp["ddpg.gamma"], hp["ddpg.lr"])
+    b = sample(key)
+    batch = rb.Transition(b.obs, b.action, b.reward, b.next_obs, b.done)
+    return ddpg.update(nets, state, batch, b.discount, hp["ddpg.lr"])  # discount: gamma per row, gamma^k n-step
 
 
 def _td3_hp(hp) -> td3.HParams:
     return td3.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["td3.tau"], hp["td3.policy_noise"], hp["td3.noise_clip"])
 
 
-def _one_step_batch(sample, key, hp):
-    """(a fresh batch of 1-step rows, the key left for the update)."""
+def _split_batch(sample, key):
+    """(a fresh batch, the key left for the update)."""
     k_batch, k_step = jax.random.split(key)
-    return one_step(sample(k_batch), hp["ddpg.gamma"]), k_step
+    return sample(k_batch), k_step
 
 
 def _td3_step(nets, state, sample, key, hp, i):
-    batch, k_noise = _one_step_batch(sample, key, hp)
+    batch, k_noise = _split_batch(sample, key)
     actor_step = i % hp["td3.policy_delay"] == 0  # the policy delay, from the unbatched step counter
     return td3.update(nets, state, batch, k_noise, _td3_hp(hp), actor_step)
 
@@ -181,7 +205,7 @@ def _sac_hp(hp) -> sac.HParams:
 
 
 def _sac_step(nets, state, sample, key, hp, i):
-    batch, k_step = _one_step_batch(sample, key, hp)
+    batch, k_step = _split_batch(sample, key)
     return sac.update(nets, state, batch, k_step, _sac_hp(hp))
 
 

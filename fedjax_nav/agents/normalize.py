@@ -12,6 +12,12 @@ normaliser statistics are pooled in a federated run).
 
 The count is a float32: past 2^24 rows it rounds, the weights n_b / n stay accurate to float32,
 where an int32 count would overflow at 2^31 rows and turn negative.
+
+`moments` / `from_moments` are the same statistics as a dict of per-row moments (count, mean,
+mean of squares): the form a learner keeps when a federated round averages it. With equal counts,
+the plain mean of several clients' moments is the moments of all their rows together (`pool`),
+and a weighted mean is the statistics of a weighted pool of their rows; a mean of RunningStats
+(M2 averaged) would miss the spread between the clients' means.
 """
 
 from __future__ import annotations
@@ -19,6 +25,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from flax import struct
+
+CLIP = 10.0  # |normalised value| bound (gymnasium's and SB3's default)
+EPS = 1e-8  # added to the variance
 
 
 @struct.dataclass
@@ -56,12 +65,18 @@ def variance(stats: RunningStats) -> jax.Array:
     return jnp.where(stats.count > 1.0, stats.m2 / jnp.maximum(stats.count, 1.0), 1.0)
 
 
-def normalize(stats: RunningStats, x: jax.Array, clip=10.0, eps=1e-8) -> jax.Array:
+def normalize(stats: RunningStats, x: jax.Array, clip=CLIP, eps=EPS) -> jax.Array:
     """(x - mean) / sqrt(var + eps), clipped to [-clip, clip] (gymnasium's and SB3's defaults: a
     lidar beam that is almost always at its maximum range has a variance near 0, and its rare
     other readings would otherwise be huge). x: f32[..., size]; clip and eps may be traced."""
-    z = (x - stats.mean) / jnp.sqrt(variance(stats) + eps)
-    return jnp.clip(z, -clip, clip)
+    mean, std = affine(stats, eps)
+    return jnp.clip((x - mean) / std, -clip, clip)
+
+
+def affine(stats: RunningStats, eps=EPS) -> tuple[jax.Array, jax.Array]:
+    """(mean, sqrt(var + eps)), each f32[size]: `normalize` before its clip is (x - mean) / std
+    (what an exported policy applies, deploy/export.py)."""
+    return stats.mean, jnp.sqrt(variance(stats) + eps)
 
 
 def pool(stats: RunningStats, mask: jax.Array | None = None) -> RunningStats:
@@ -73,3 +88,19 @@ def pool(stats: RunningStats, mask: jax.Array | None = None) -> RunningStats:
     mean = jnp.sum(counts[:, None] * stats.mean, axis=0) / jnp.maximum(n, 1e-30)
     m2 = jnp.sum(w[:, None] * stats.m2, axis=0) + jnp.sum(counts[:, None] * (stats.mean - mean) ** 2, axis=0)
     return RunningStats(n, jnp.where(n > 0, mean, 0.0), m2)
+
+
+def moments(stats: RunningStats) -> dict:
+    """{"count": f32[], "mean": f32[size], "mean_sq": f32[size]}: the per-row moments, linear under
+    a weighted mean over clients (module docstring). A dict, so that it can sit in a flax variable
+    dict and be written, read and averaged like a network's parameters."""
+    var = jnp.where(stats.count > 0, stats.m2 / jnp.maximum(stats.count, 1e-30), 0.0)
+    return {"count": stats.count, "mean": stats.mean, "mean_sq": var + stats.mean**2}
+
+
+def from_moments(m: dict) -> RunningStats:
+    """The RunningStats of `moments`' dict. A count below 0 or a variance below 0, which only an
+    average with negative weights (or an attack) can make, are read as 0."""
+    count = jnp.maximum(m["count"], 0.0)
+    var = jnp.maximum(m["mean_sq"] - m["mean"] ** 2, 0.0)
+    return RunningStats(count, m["mean"], count * var)

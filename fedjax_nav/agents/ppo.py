@@ -22,6 +22,17 @@ which the log-density is exact. H is its one-sample entropy estimate. Every fiel
 and `init`'s init_log_std are traced; Nets fix the shapes and loops (hidden sizes, GRU, epochs,
 minibatches). Federated: `SHARED` (actor, log_std, value) is what a round averages; the Adam
 moments stay local.
+
+Observation normalisation (`make_nets(normalize_obs=True)`; docs/learners.md): the actor's variable
+dict holds, beside "params", a collection `NORM` with the running statistics of the observations
+(`normalize.moments`: count, mean, mean of squares), as flax keeps BatchNorm's statistics in
+"batch_stats". Every network input is `normalize.normalize(stats, obs)`: in `act`, `greedy`,
+`evaluate` and `update`. The rollout keeps raw observations; `update` normalises them with the
+statistics that acted and merges the rollout into the statistics after its epochs (not per step),
+so that pi_old in the ratio is the policy that acted. The statistics are part of the actor: a
+round averages them with it (an average of per-row moments is their exact pool when the clients'
+counts are equal, which PPO's are), params.npz keeps them, and evaluation and export read them
+with the actor (`Learner.policy`). Without it the actor is {"params": ...} as before.
 """
 
 from __future__ import annotations
@@ -35,10 +46,12 @@ import optax
 from flax import struct
 
 from fedjax_nav.agents import distributions as dist
+from fedjax_nav.agents import normalize
 from fedjax_nav.agents.networks_extra import MeanNet, RecurrentMLP, ValueNet
 
-SHARED = ("actor", "log_std", "value")
+SHARED = ("actor", "log_std", "value")  # "actor" carries the observation statistics (NORM) when normalised
 TARGETS = ()
+NORM = "obs_norm"  # the actor's variable collection of observation statistics (normalize.moments)
 _ADAM = optax.scale_by_adam()
 
 
@@ -52,6 +65,7 @@ class Nets:
     epochs: int = struct.field(pytree_node=False)
     minibatches: int = struct.field(pytree_node=False)
     action_size: int = struct.field(pytree_node=False)
+    normalize_obs: bool = struct.field(pytree_node=False, default=False)  # the actor's NORM statistics
 
     @property
     def recurrent(self) -> bool:
@@ -96,7 +110,7 @@ class Step(NamedTuple):
 class Rollout:
     """T steps of E environments (leading axes [T, E]) under one parameter set."""
 
-    obs: jax.Array  # f32[T, E, obs] as fed to the policy (normalised, if the trainer normalises)
+    obs: jax.Array  # f32[T, E, obs] the raw observation (`update` normalises it, if the actor does)
     raw_action: jax.Array  # f32[T, E, A] Step.raw_action
     log_prob: jax.Array  # f32[T, E] Step.log_prob
     reward: jax.Array  # f32[T, E]
@@ -116,6 +130,7 @@ def make_nets(
     epochs: int = 4,
     minibatches: int = 4,
     action_size: int = 2,
+    normalize_obs: bool = False,
 ) -> Nets:
     for name, value in (("epochs", epochs), ("minibatches", minibatches), ("gru", gru if recurrent else 1)):
         if value < 1:
@@ -123,7 +138,7 @@ def make_nets(
     if recurrent:
         actor = RecurrentMLP(hidden, depth, activation, gru, action_size, small_head=True)
         value = RecurrentMLP(hidden, depth, activation, gru, 1)
-        return Nets(actor, value, gru, epochs, minibatches, action_size)
+        return Nets(actor, value, gru, epochs, minibatches, action_size, normalize_obs)
     return Nets(
         MeanNet(hidden, depth, activation, action_size),
         ValueNet(hidden, depth, activation),
@@ -131,6 +146,7 @@ def make_nets(
         epochs,
         minibatches,
         action_size,
+        normalize_obs,
     )
 
 
@@ -144,7 +160,45 @@ def init(nets: Nets, key: jax.Array, obs_size: int, init_log_std=0.0) -> State:
     else:
         actor, value = nets.actor.init(ka, obs), nets.value.init(kv, obs)
     log_std = jnp.full((nets.action_size,), init_log_std, jnp.float32)
-    return State(actor, log_std, value, _ADAM.init((actor, log_std, value)))
+    opt = _ADAM.init((actor, log_std, value))  # the networks' weights only: the statistics are not learned
+    if nets.normalize_obs:
+        actor = {**actor, NORM: normalize.moments(normalize.init(obs_size))}
+    return State(actor, log_std, value, opt)
+
+
+def weights(actor: dict) -> dict:
+    """The actor's network variables ({"params": ...}) without its observation statistics."""
+    return {k: v for k, v in actor.items() if k != NORM}
+
+
+def observe(nets: Nets, actor: dict, obs: jax.Array) -> jax.Array:
+    """The networks' input for raw observations f32[..., obs]: normalised with the actor's
+    statistics when nets.normalize_obs, else obs itself."""
+    return normalize.normalize(normalize.from_moments(actor[NORM]), obs) if nets.normalize_obs else obs
+
+
+def input_affine(actor: dict) -> tuple[jax.Array, jax.Array, float] | None:
+    """(mean, std, clip) with `observe`(obs) = clip((obs - mean) / std, -clip, clip) for an actor's
+    variables (what an export writes: deploy/export.py), or None for an actor without statistics."""
+    if NORM not in actor:
+        return None
+    mean, std = normalize.affine(normalize.from_moments(actor[NORM]))
+    return mean, std, normalize.CLIP
+
+
+def observe_rollout(nets: Nets, actor: dict, rollout: Rollout) -> Rollout:
+    """The rollout with obs and next_obs as the networks see them (`observe`)."""
+    if not nets.normalize_obs:
+        return rollout
+    return rollout.replace(obs=observe(nets, actor, rollout.obs), next_obs=observe(nets, actor, rollout.next_obs))
+
+
+def merge_rollout(nets: Nets, actor: dict, rollout: Rollout) -> dict:
+    """The actor with the rollout's raw observations (every [T, E] row) merged into its statistics."""
+    if not nets.normalize_obs:
+        return actor
+    stats = normalize.update(normalize.from_moments(actor[NORM]), rollout.obs)
+    return {**actor, NORM: normalize.moments(stats)}
 
 
 def initial_hidden(nets: Nets) -> Hidden:
@@ -163,8 +217,9 @@ def _net_step(nets: Nets, net: nn.Module, params: dict, h: jax.Array, obs: jax.A
 def act(nets: Nets, state: State, obs: jax.Array, key: jax.Array, hidden: Hidden, reset) -> tuple[Step, Hidden]:
     """Exploration: a draw from the policy at one observation. reset: obs is an episode's first
     (the GRUs start from zeros); hidden passes through untouched without a GRU."""
-    h_a, mean = _net_step(nets, nets.actor, state.actor, hidden.actor, obs, reset)
-    h_v, v = _net_step(nets, nets.value, state.value, hidden.value, obs, reset)
+    x = observe(nets, state.actor, obs)
+    h_a, mean = _net_step(nets, nets.actor, weights(state.actor), hidden.actor, x, reset)
+    h_v, v = _net_step(nets, nets.value, state.value, hidden.value, x, reset)
     action, raw, logp = dist.sample(key, mean, state.log_std)
     return Step(action, raw, logp, jnp.reshape(v, ())), Hidden(h_a, h_v)
 
@@ -176,8 +231,9 @@ def greedy(nets: Nets, state: State, obs: jax.Array, hidden: Hidden, reset) -> t
 
 
 def greedy_actor(nets: Nets, actor: dict, obs: jax.Array, hidden: Hidden, reset) -> tuple[jax.Array, Hidden]:
-    """`greedy` from the actor's parameters alone (what evaluation and export hold)."""
-    h_a, mean = _net_step(nets, nets.actor, actor, hidden.actor, obs, reset)
+    """`greedy` from the actor's parameters alone (what evaluation and export hold; its
+    observation statistics too, when normalised)."""
+    h_a, mean = _net_step(nets, nets.actor, weights(actor), hidden.actor, observe(nets, actor, obs), reset)
     return dist.mode(mean), hidden._replace(actor=h_a)
 
 
@@ -241,9 +297,16 @@ def _env_next_values(nets: Nets, value: dict, hidden: Hidden, obs, reset, next_o
 
 
 def evaluate(nets: Nets, state: State, rollout: Rollout) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """(log pi(raw_action), V(obs), V(next_obs)), each f32[T, E], under the state's parameters."""
+    """(log pi(raw_action), V(obs), V(next_obs)), each f32[T, E], under the state's parameters
+    (its observation statistics included) for a rollout of raw observations."""
+    return _evaluate(nets, state, observe_rollout(nets, state.actor, rollout))
+
+
+def _evaluate(nets: Nets, state: State, rollout: Rollout) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """`evaluate` on observations already as the networks see them."""
     env_axes = (Hidden(0, 0), 1, 1)
-    mean, v = jax.vmap(lambda h, o, r: _env_forward(nets, state.actor, state.value, h, o, r), env_axes, 1)(
+    actor = weights(state.actor)
+    mean, v = jax.vmap(lambda h, o, r: _env_forward(nets, actor, state.value, h, o, r), env_axes, 1)(
         rollout.hidden, rollout.obs, rollout.reset
     )
     nv = jax.vmap(lambda h, o, r, n: _env_next_values(nets, state.value, h, o, r, n), (*env_axes, 1), 1)(
@@ -285,14 +348,16 @@ def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp: HPara
     recurrent policy the E environments, each a whole sequence) are permuted each epoch and cut
     into nets.minibatches equal parts: a ValueError naming ppo.minibatches if they do not divide.
     Losses: the means over every minibatch of loss, policy_loss, value_loss, entropy, approx_kl,
-    clip_frac."""
+    clip_frac. With nets.normalize_obs the rollout's observations are normalised with the
+    statistics that acted, and merged into them after the epochs."""
     steps, envs = rollout.reward.shape
     m = nets.minibatches
     rows = envs if nets.recurrent else steps * envs
     if rows % m:
         what = "environments per rollout (a recurrent policy's rows)" if nets.recurrent else "rollout rows (T * E)"
         raise ValueError(f"ppo.minibatches: {m} does not divide the {what}: {rows}")
-    _, values, next_values = evaluate(nets, state, rollout)
+    raw, rollout = rollout, observe_rollout(nets, state.actor, rollout)
+    _, values, next_values = _evaluate(nets, state, rollout)
     end = jnp.maximum(jnp.asarray(rollout.terminated, jnp.float32), jnp.asarray(rollout.truncated, jnp.float32))
     adv, returns = gae(rollout.reward, values, next_values, rollout.terminated, end, hp.gamma, hp.gae_lambda)
     data = {
@@ -325,6 +390,7 @@ def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp: HPara
         mbs = jax.tree.map(lambda x: jnp.take(x, perm, axis=0).reshape(m, rows // m, *x.shape[1:]), data)
         return jax.lax.scan(minibatch, carry, (mbs, jax.random.split(k_mb, m)))
 
-    carry = ((state.actor, state.log_std, state.value), state.opt)
+    carry = ((weights(state.actor), state.log_std, state.value), state.opt)
     ((actor, log_std, value), opt), info = jax.lax.scan(epoch, carry, jax.random.split(key, nets.epochs))
+    actor = merge_rollout(nets, {**state.actor, **actor}, raw)
     return State(actor, log_std, value, opt), jax.tree.map(jnp.mean, info)

@@ -100,6 +100,36 @@ class EnvConfig:
         doc="RoomSpec overrides of the procedural rooms, e.g. 'cylinders_max=4, goals_max=2' "
         "(static; docs/generator.md)",
     )
+    # The learnability curriculum over procedural rooms (docs/generalization.md). The defaults give today's runs.
+    room_sampling: str = _f(
+        "uniform",
+        choices=("uniform", "learnability"),
+        doc="procedural rooms: uniform = a fresh room at every renewal; learnability = each environment keeps a "
+        "bank of env.room_bank rooms and draws them with weight p(1 - p), p its recent success (static)",
+    )
+    room_bank: int = _f(16, lo=1, hi=4096, doc="learnability: rooms in each environment's bank (static)")
+    room_fresh: float = _f(
+        0.5,
+        lo=0.0,
+        hi=1.0,
+        traced=True,
+        doc="learnability: probability that a renewal draws a fresh room (it replaces the bank's least "
+        "learnable room) instead of a bank room",
+    )
+    room_ema: float = _f(
+        0.5,
+        lo=0.0,
+        hi=1.0,
+        traced=True,
+        doc="learnability: EMA rate of a bank room's success p, updated with each episode's goal share",
+    )
+    room_floor: float = _f(
+        0.01,
+        lo=1e-6,
+        hi=1.0,
+        traced=True,
+        doc="learnability: added to every p(1 - p) weight, so that a bank of solved or hopeless rooms still samples",
+    )
     placement: str = _f(
         "fixed",
         choices=("fixed", "random"),
@@ -119,7 +149,7 @@ class EnvConfig:
 class DDPGConfig:
     """DDPG's settings, and the off-policy settings TD3 and SAC share with it: the networks (hidden,
     depth, activation), the replay buffer (buffer_size, buffer_alloc, batch_size, gradient_steps),
-    gamma, lr (actor and critic) and train_every. rho, target_every and epsilon_* are DDPG's only."""
+    gamma, n_step, lr (actor and critic) and train_every. rho, target_every and epsilon_* are DDPG's only."""
 
     hidden: int = _f(64, lo=1, hi=65536, doc="hidden width (static)")
     depth: int = _f(3, lo=1, hi=16, doc="hidden layers (static)")
@@ -146,6 +176,13 @@ class DDPGConfig:
         hi=4096,
         doc="gradient steps per update event, each on its own batch (static): the update-to-data ratio "
         "is gradient_steps / (train_every x rows per step); raise it with env.envs_per_robot",
+    )
+    n_step: int = _f(
+        1,
+        lo=1,
+        hi=1000,
+        doc="n-step returns of ddpg, td3, sac (static): the target sums n rewards of one environment "
+        "and bootstraps with gamma^n, cut at an episode's end; 1 = the 1-step target",
     )
 
 
@@ -194,6 +231,11 @@ class PPOConfig:
     ent_coef: float = _f(0.0, lo=0.0, hi=1e3, traced=True, doc="entropy bonus weight")
     max_grad_norm: float = _f(0.5, lo=0.0, hi=1e6, traced=True, doc="global gradient norm clip")
     init_log_std: float = _f(0.0, lo=-20.0, hi=5.0, traced=True, doc="initial log-std of the raw action")
+    normalize_obs: bool = _f(
+        False,
+        doc="normalise observations with running statistics, updated from each rollout and part of the "
+        "actor: federated with it, evaluated and exported with it (static)",
+    )
 
 
 @dataclass(frozen=True)

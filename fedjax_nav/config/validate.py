@@ -10,6 +10,7 @@ from dataclasses import fields
 from typing import Any
 
 from fedjax_nav.config import (
+    LEARNERS,
     ON_POLICY_LEARNERS,
     ROOM_FAMILIES,
     SECTIONS,
@@ -183,6 +184,7 @@ def check(cfg: Config, src: str = "<config>") -> None:
     _check_fed(cfg, src, federated)
     _check_learner(cfg, src)
     _check_rooms(cfg, src)
+    _check_learnability(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:
         raise ConfigError(
             f"{src}: run.episodes ({cfg.run.episodes}) must be a multiple of run.chunk_episodes "
@@ -211,6 +213,9 @@ def _check_learner(cfg: Config, src: str) -> None:
         )
     if p.recurrent != "none" and cfg.learner != "ppo":
         raise ConfigError(f"{src}: ppo.recurrent ({p.recurrent!r}) needs learner: ppo (learner is {cfg.learner!r})")
+    if p.normalize_obs and cfg.learner != "ppo":
+        raise ConfigError(f"{src}: ppo.normalize_obs needs learner: ppo (learner is {cfg.learner!r})")
+    _check_n_step(cfg, src, method)
     if cfg.learner == "ppo":
         # the environments of one rollout: a robot's, or every robot's under one shared network
         n = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_network else 1)
@@ -220,6 +225,25 @@ def _check_learner(cfg: Config, src: str) -> None:
         rows, what = (n, per) if recurrent else (p.rollout * n, f"ppo.rollout x {per}")
         if rows % p.minibatches:
             raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
+
+
+def _check_n_step(cfg: Config, src: str, method) -> None:
+    """ddpg.n_step: an off-policy learner's, and a window of n steps of every environment writing
+    into one buffer must fit in it."""
+    d = cfg.ddpg
+    if d.n_step == 1:
+        return
+    if cfg.learner in ON_POLICY_LEARNERS:
+        off_policy = ", ".join(n for n in LEARNERS if n not in ON_POLICY_LEARNERS)
+        raise ConfigError(
+            f"{src}: ddpg.n_step ({d.n_step}) needs an off-policy learner: {off_policy} (learner is {cfg.learner!r})"
+        )
+    rows = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_buffer else 1)
+    if d.n_step * rows > d.buffer_size:
+        raise ConfigError(
+            f"{src}: ddpg.n_step ({d.n_step}) x rows written per step into one buffer ({rows}) is more than "
+            f"ddpg.buffer_size ({d.buffer_size}): a window of n steps must fit in the buffer"
+        )
 
 
 def _check_rooms(cfg: Config, src: str) -> None:
@@ -243,6 +267,31 @@ def _check_rooms(cfg: Config, src: str) -> None:
             f"{src}: env.room_families has {len(fams)} entries; allowed: 1 (every robot) or one per "
             f"robot ({n}, env.worlds)"
         )
+
+
+def _check_learnability(cfg: Config, src: str) -> None:
+    """The learnability curriculum's fields (docs/generalization.md): they act on procedural rooms
+    sampled by learnability only, and need at least one robot of a generated family."""
+    e = cfg.env
+    if e.room_sampling == "learnability":
+        if e.rooms != "procedural":
+            raise ConfigError(
+                f"{src}: env.room_sampling = learnability draws procedural rooms; it needs env.rooms = procedural "
+                f"(env.rooms is {e.rooms!r})"
+            )
+        if all(f == "fixed" for f in e.room_families):
+            raise ConfigError(
+                f"{src}: env.room_sampling = learnability needs a generated family in env.room_families "
+                "(every robot keeps its fixed room)"
+            )
+        return
+    defaults = {f.name: f.default for f in fields(type(e))}
+    for name in ("room_bank", "room_fresh", "room_ema", "room_floor"):
+        if getattr(e, name) != defaults[name]:
+            raise ConfigError(
+                f"{src}: env.{name} ({getattr(e, name)!r}) sets the learnability curriculum; it needs "
+                f"env.room_sampling = learnability (env.room_sampling is {e.room_sampling!r})"
+            )
 
 
 def _check_fed(cfg: Config, src: str, federated: bool) -> None:

@@ -40,9 +40,10 @@ from fedjax_nav.deploy.onnx_graph import ONNX_OPSET, onnx_model
 def _project():
     """Every import of project code, in one place (imported lazily so that `fedjax-nav --help`
     stays instant; re-point this line when the module moves)."""
+    from fedjax_nav.agents.ppo import input_affine
     from fedjax_nav.evaluation import EvalError, load_run
 
-    return load_run, EvalError
+    return load_run, EvalError, input_affine
 
 
 FORMATS = ("numpy", "onnx")
@@ -130,6 +131,21 @@ def gru_weights(actor_params: dict, depth: int) -> dict[str, np.ndarray]:
     return {**out, **_dense(p["head"], "head")}
 
 
+def input_weights(actor_params: dict, input_affine) -> dict[str, np.ndarray]:
+    """The observation normaliser of an actor that has one (PPO with ppo.normalize_obs:
+    `input_affine(actor)` = (mean, std, clip), agents.ppo) -> "obs_norm/mean", "obs_norm/std",
+    "obs_norm/clip" of policy_template.normalize_input; {} for an actor without one."""
+    affine = input_affine(actor_params)
+    if affine is None:
+        return {}
+    mean, std, clip = affine
+    return {
+        "obs_norm/mean": np.asarray(mean, np.float32),
+        "obs_norm/std": np.asarray(std, np.float32),
+        "obs_norm/clip": np.asarray(clip, np.float32),
+    }
+
+
 WEIGHTS = {"heads": actor_weights, "squashed": squashed_weights, "gru": gru_weights}
 ACTION_DOC = {
     "heads": ["v / v_max in [0, 1] (sigmoid)", "omega / omega_max in [-1, 1] (tanh)"],
@@ -171,7 +187,7 @@ def export_run(
     force: bool = False,
 ) -> list[Path]:
     """Export one actor of a run; returns the files written. Raises ExportError (one-line message)."""
-    load_run, EvalError = _project()
+    load_run, EvalError, input_affine = _project()
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt!r}: unknown format (choose from {', '.join(FORMATS)})")
     if fmt == "onnx":
@@ -198,7 +214,8 @@ def export_run(
     how = EXPORTS[cfg.learner]
     kind = how.kind(cfg)
     e, d = cfg.env, getattr(cfg, how.section)
-    weights = WEIGHTS[kind](_tree_map_index(run.actor_params, flat), d.depth)
+    actor = _tree_map_index(run.actor_params, flat)
+    weights = {**WEIGHTS[kind](actor, d.depth), **input_weights(actor, input_affine)}
     obs_size = int(e.num_beams) + 4
     meta = {
         "format": fmt,
@@ -234,6 +251,12 @@ def export_run(
         ],
         "action": ACTION_DOC[kind],
     }
+    if "obs_norm/mean" in weights:
+        meta["observation_normalization"] = (
+            "the network's input is clip((obs - mean) / std, -clip, clip), weights obs_norm/mean, obs_norm/std, "
+            "obs_norm/clip: the running statistics of training (ppo.normalize_obs); policy.py and the ONNX graph "
+            "apply it"
+        )
     if kind == "gru":
         meta["memory"] = (
             "a GRU state h float32[gru]: zeros at an episode's start (a new goal: Policy.reset()), "

@@ -20,7 +20,7 @@ import numpy as np
 
 from fedjax_nav.deploy.policy_template import INPUT_LAYER  # the layer whose kernel's rows are the observation
 
-ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat: runtimes from 2022 on read it
+ONNX_OPSET = 17  # Gemm, Relu, Tanh, Sigmoid, Elu, Mul, Add, Concat, Sub, Div, Clip: runtimes from 2022 on read it
 ONNX_IR_VERSION = 8  # the IR version of opset 17 (onnx would stamp its newest, which older runtimes refuse)
 
 
@@ -29,7 +29,9 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
     float32[batch, 2]. kind "heads": concat(sigmoid(v_head(x)), tanh(omega_head(x))), x = the
     hidden stack; "squashed": loc + scale * tanh(mean(x)) (box loc (0.5, 0), scale (0.5, 1));
     "gru": also input "h" float32[batch, gru] (zeros at an episode's start) and output "h_out"
-    (the state after this step, to feed back as "h"), the layers of policy_template.gru_forward."""
+    (the state after this step, to feed back as "h"), the layers of policy_template.gru_forward.
+    Weights with an observation normaliser ("obs_norm/*") first take clip((obs - mean) / std),
+    as policy_template.normalize_input."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
@@ -93,11 +95,22 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
     inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])]
     outputs = [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])]
     x = "obs"
+    if "obs_norm/mean" in weights:  # policy_template.normalize_input
+        c = float(weights["obs_norm/clip"])
+        z = node(
+            "Div",
+            [
+                node("Sub", ["obs", const("obs_norm.mean", weights["obs_norm/mean"])], "obs.centred"),
+                const("obs_norm.std", weights["obs_norm/std"]),
+            ],
+            "obs.scaled",
+        )
+        x = node("Clip", [z, const("obs_norm.low", -c), const("obs_norm.high", c)], "obs.norm")
     if kind == "gru":  # flax's GRUCell, as policy_template.gru_cell
         gru = int(weights["gru/hn/kernel"].shape[0])
         inputs.append(helper.make_tensor_value_info("h", TensorProto.FLOAT, ["batch", gru]))
         outputs.append(helper.make_tensor_value_info("h_out", TensorProto.FLOAT, ["batch", gru]))
-        x = act(gemm("obs", "embed", "embed.z"), "embed.out")
+        x = act(gemm(x, "embed", "embed.z"), "embed.out")
         r_pre = node("Add", [gemm(x, "gru/ir", "ir"), gemm("h", "gru/hr", "hr")], "r.pre")
         z_pre = node("Add", [gemm(x, "gru/iz", "iz"), gemm("h", "gru/hz", "hz")], "z.pre")
         r, z = node("Sigmoid", [r_pre], "r"), node("Sigmoid", [z_pre], "z")

@@ -25,6 +25,11 @@ Networks (meta.json's network.kind, one per learner's greedy actor):
   `reset()`, which a robot calls at every new goal (the simulator's episode start, where
   training reset it). Without a memory (the other kinds) `reset()` does nothing.
 
+Observation normalisation (a PPO run with ppo.normalize_obs): weights.npz then also holds
+"obs_norm/mean", "obs_norm/std" [obs_size] and "obs_norm/clip" [], the running statistics the
+policy was trained and federated with, and every kind's first layer sees
+clip((obs - mean) / std, -clip, clip) (`normalize_input`) instead of obs.
+
 Conventions (the simulator's, fedjax_nav.env.nav / fedjax_nav.env.geometry):
 
 - Beams: beam i points at heading + 2 pi i / num_beams (counter-clockwise, beam 0 straight ahead),
@@ -75,6 +80,7 @@ __all__ = [
     "squashed_forward",
     "gru_forward",
     "squash",
+    "normalize_input",
     "pool_scan",
     "goal_features",
     "build_observation",
@@ -116,6 +122,17 @@ def _silu(x):
 ACTIVATIONS = {"relu": _relu, "tanh": np.tanh, "elu": _elu, "gelu": _gelu, "silu": _silu}
 
 
+def normalize_input(weights: dict, obs) -> np.ndarray:
+    """The observation as the first layer sees it: clip((obs - mean) / std, -clip, clip) when the
+    weights hold an observation normaliser ("obs_norm/mean", "obs_norm/std", "obs_norm/clip"),
+    else obs itself; float32[..., obs_size]."""
+    x = np.asarray(obs, np.float32)
+    if "obs_norm/mean" not in weights:
+        return x
+    c = weights["obs_norm/clip"]
+    return np.clip((x - weights["obs_norm/mean"]) / weights["obs_norm/std"], -c, c).astype(np.float32)
+
+
 def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
     """The flax Actor's forward pass: depth x (Dense(hidden) + activation), then two 1-unit heads,
     sigmoid (v / v_max) and tanh (omega / omega_max). obs: [..., obs_size]; returns float32[..., 2].
@@ -126,7 +143,7 @@ def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
     if activation not in ACTIVATIONS:
         raise ValueError(f"unknown activation {activation!r} (known: {', '.join(ACTIVATIONS)})")
     act = ACTIVATIONS[activation]
-    x = np.asarray(obs, np.float32)
+    x = normalize_input(weights, obs)
     depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
     for i in range(depth):
         x = act(x @ weights[f"hidden_{i}/kernel"] + weights[f"hidden_{i}/bias"])
@@ -163,7 +180,7 @@ def squashed_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray
     """A squashed-Gaussian policy's greedy action (SAC's actor, feed-forward PPO's mean net):
     depth x (Dense(hidden) + activation), then "mean" [hidden, 2], squashed into the box.
     obs: [..., obs_size]; returns float32[..., 2]."""
-    x = _trunk(weights, np.asarray(obs, np.float32), _activation(activation))
+    x = _trunk(weights, normalize_input(weights, obs), _activation(activation))
     return squash(x @ weights["mean/kernel"] + weights["mean/bias"])
 
 
@@ -182,7 +199,7 @@ def gru_forward(weights: dict, obs, h, activation: str = "tanh") -> tuple[np.nda
     [..., obs_size] and the hidden state h [..., gru] before the step (zeros at an episode's start).
     Layers: "embed" + activation, the GRU ("gru/*"), "hidden_{i}" + activation, "head" [hidden, 2]."""
     act = _activation(activation)
-    x = act(np.asarray(obs, np.float32) @ weights["embed/kernel"] + weights["embed/bias"])
+    x = act(normalize_input(weights, obs) @ weights["embed/kernel"] + weights["embed/bias"])
     h = gru_cell(weights, x, np.asarray(h, np.float32))
     y = _trunk(weights, h, act)
     return squash(y @ weights["head/kernel"] + weights["head/bias"]), h

@@ -3,21 +3,22 @@
 env:   env-only agent-steps/s (random actions, one jitted lax.scan) at batch 1, 64, 1024, 4096
        over the thesis's training rooms (24 beams, every obstacle).
 train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per robot), timed after
-       compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of its updates and actions against
-       the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of the
-       whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput), and
-       1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then
-       (experiments/bench_learners.py) the other learners with many environments per robot (`env.envs_per_robot`): feed-forward PPO with
-       5 robots x 256 environments in procedural rooms, SAC and TD3 with 5 x 64, and the env alone
-       at PPO's batch (1280) in the thesis rooms and in procedural rooms, and brax's own PPO at
-       that batch. Their gradient steps per second count PPO's epochs x minibatches and the
-       off-policy `gradient_steps` per update event; FLOP/s are the matmuls of every update and
-       every action, counted on the learner's own jaxprs (experiments/flops.py).
+       compilation: agent-steps/s, agent-updates/s, achieved GFLOP/s of its updates and actions
+       against the fp32 matmul ceiling measured in the same run, and the extrapolated wall time of
+       the whole 125-episode run; also 1 vs several seeds in one program (per-seed throughput),
+       and 1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then
+       (experiments/bench_learners.py) the other learners with many environments per robot
+       (`env.envs_per_robot`): feed-forward and recurrent PPO with 5 robots x 256 environments
+       in procedural rooms, SAC and TD3 with 5 x 64, the env alone at PPO's batch (1280) in the
+       thesis rooms and in procedural rooms, and brax's own PPO at that batch. Their gradient
+       steps per second count PPO's epochs x minibatches and the off-policy `gradient_steps` per
+       update event; FLOP/s are the matmuls of every update and every action, counted on the
+       learner's own jaxprs (experiments/flops.py).
 sweep: a grid of 4 tau values at thesis scale, one by one against one vmapped program (the
        per-run cost of `fedjax-nav sweep`).
 
-Results print as a table (experiments/bench_run.py runs the rows); `--record FILE` appends them, with machine, versions and command, to a
-markdown file (docs/benchmarks.md).
+Results print as a table (experiments/bench_run.py runs the rows); `--record FILE` appends them,
+with machine, versions and command, to a markdown file (docs/benchmarks.md).
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ from jax.sharding import PartitionSpec as P
 AXES = ("clients", "seeds")
 # TrainState fields whose leaves are [seeds, clients, ...]; every other field is [seeds, ...].
 # world: procedural rooms [robots]; memory, first: [environments] of the learners with a memory
-CLIENT_FIELDS = ("agents", "buffers", "env_state", "obs", "reward_sum", "world", "memory", "first")
+CLIENT_FIELDS = ("agents", "buffers", "env_state", "obs", "reward_sum", "world", "memory", "first", "bank")
 
 
 class ShardingError(ValueError):

@@ -9,6 +9,10 @@ procedural rooms drawn inside the compiled program, and random start/goal placem
                                in the free space of each robot's room (clearance > D_c + 0.05 m)
     env.room_density_start,    a curriculum, sparse to dense: the rooms drawn at episode ep keep
     env.room_curriculum_episodes   `density(hp, ep)` of their obstacles (traced; default none)
+    env.room_sampling =        the learnability curriculum (SFL): each environment keeps a bank of
+      "learnability"           env.room_bank procedural rooms with their recent success p; a renewal
+                               draws a fresh room with probability env.room_fresh, else a bank room
+                               with weight p(1 - p) + env.room_floor (`RoomBank`, below)
 
 With env.envs_per_robot = N > 1 each robot steps N environments: there is one room per
 environment (rows robot-major: environment j of robot i is row i * N + j), each drawn on its own
@@ -22,6 +26,19 @@ come from `train_room_key(room_stream + b * robots + robot)`: the training half 
 seeds, disjoint from every held-out test suite (`fedjax_nav.worlds.suites`). Drawing happens at
 the episode's reset, on the device, in the same compiled program (no recompilation, no host
 round trip). A fixed run's state has neither field (`None`): its program is unchanged.
+
+The learnability curriculum ("sampling for learnability", Rutherford et al. 2024, as JaxNav's
+SFL) adds `bank` (a `RoomBank`) to the state; a uniform run's `bank` is None and its program is
+today's. The bank holds room counters, not rooms: bank room k of environment r is
+`generate(train_room_key(rooms[r, k]), spec_r, density(hp, ep))`, regenerated when drawn (one
+generation per environment per renewal, as a uniform run), so its rooms come from the training
+half of the room seeds like every other training room, and a bank costs 8 bytes per room.
+The bank starts as the rooms a uniform run draws in its blocks 0 .. B-1 (its block 0 is the
+initial room, bitwise a uniform run's); the fresh room of block b is the uniform run's room of
+block B + b. Outcome and update: at each episode's end every environment's goal share over the
+attempts of that episode (goals / attempts, an attempt ending in a goal, a collision or the
+episode's time-out) moves p of its current room by an EMA with rate env.room_ema
+(`update_score`). Never-tried rooms have p = 0.5, where p(1 - p) is largest: they get tried.
 """
 
 from __future__ import annotations
@@ -29,6 +46,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from fedjax_nav import worlds
 from fedjax_nav.env.gym_task import place  # random placement: the gymnasium adapters' own draw
@@ -39,6 +57,8 @@ from fedjax_nav.worlds.suites import common_shape, padded_spec, train_room_key
 
 FIXED = "fixed"
 ROOM_STREAM = 0x8007  # fold_in tag: the seed's room stream and placement draws (the run's key stream is untouched)
+ROOM_BANK = 0x8009  # fold_in tag: the learnability curriculum's draws (the run's key stream is untouched)
+UNTRIED = 0.5  # p of a room never tried: p(1 - p) is largest there
 
 
 def parse_room_spec(text: str) -> dict:
@@ -60,10 +80,13 @@ class TrainRooms:
         self.num_rooms = n * per  # one per environment
         self.procedural = e.rooms == "procedural"
         self.random_placement = e.placement == "random"
+        self.learnability = self.procedural and e.room_sampling == "learnability"
+        self.bank_size = e.room_bank
         fixed = [worlds.load(w) for w in e.worlds]
         if not self.procedural:
             self.world = _per_env(worlds.load_many(e.worlds), per)  # N = 1: exactly the fixed program's World
             self.families, self.groups = (FIXED,) * n, []
+            self.banked = np.zeros(self.num_rooms, bool)
             return
         fams = tuple(e.room_families)
         if 1 < len(fams) < n and len(e.worlds) == n:  # clients padded for a mesh (Trainer pad): copies of the last
@@ -83,6 +106,7 @@ class TrainRooms:
         self.specs = {f: padded_spec(s, self.shape) for f, s in specs.items()}
         self.world = _per_env(worlds.stack([worlds.pad(w, *self.shape) for w in fixed]), per)  # "fixed" rows
         room_families = [f for f in self.families for _ in range(per)]
+        self.banked = np.array([f != FIXED for f in room_families])  # the rows whose rooms are generated
         self.groups = [
             (self.specs[f], np.array([i for i, g in enumerate(room_families) if g == f])) for f in self.specs
         ]
@@ -94,10 +118,19 @@ class TrainRooms:
     def draw(self, stream: jax.Array, block: jax.Array, density=1.0) -> World:
         """The robots' rooms of block `block` (World [robots]), thinned to `density` (see
         `density`); pure JAX, jit/vmap-able."""
-        world = self.world
+        return self.rooms_at(self.block_counters(stream, block), density)
+
+    def block_counters(self, stream: jax.Array, block) -> jax.Array:
+        """The room counters u32[environments] of block `block`: stream + block * environments + row."""
         base = stream + jnp.asarray(block, jnp.uint32) * jnp.uint32(self.num_rooms)
+        return base + jnp.arange(self.num_rooms, dtype=jnp.uint32)
+
+    def rooms_at(self, counters: jax.Array, density=1.0) -> World:
+        """Every environment's room from its counter u32[environments] (`train_room_key`: the
+        training half of the room seeds); the rows of family "fixed" keep their playground."""
+        world = self.world
         for spec, idx in self.groups:
-            keys = jax.vmap(train_room_key)(base + jnp.asarray(idx, jnp.uint32))
+            keys = jax.vmap(train_room_key)(counters[idx])
             rooms = jax.vmap(lambda k, spec=spec: generate(k, spec, density))(keys)
             world = jax.tree.map(lambda a, b, idx=idx: a.at[idx].set(b.astype(a.dtype)), world, rooms)
         return world
@@ -105,7 +138,9 @@ class TrainRooms:
     def episode_world(self, state, hp, ep) -> tuple[object, World]:
         """At an episode's reset: (state with its rooms renewed when due, the robots' World)."""
         world = self.world
-        if self.procedural:
+        if self.learnability:
+            state, world = self._bank_world(state, hp, ep)
+        elif self.procedural:
             every = hp["env.room_every"]
             world = jax.lax.cond(
                 ep % every == 0,
@@ -117,6 +152,110 @@ class TrainRooms:
             keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_rooms)
             world = jax.vmap(place)(world, keys)
         return state, world
+
+    # ------------------------------------------------------------ the learnability curriculum
+
+    def init_bank(self, stream: jax.Array) -> RoomBank:
+        """A seed's initial bank: row r's rooms are those of blocks 0 .. B-1 (`block_counters`),
+        all untried; every environment starts in slot 0 (block 0's room, the initial `world`)."""
+        rooms = jax.vmap(lambda b: self.block_counters(stream, b), out_axes=1)(jnp.arange(self.bank_size))
+        return RoomBank(
+            rooms=rooms,
+            p=jnp.full((self.num_rooms, self.bank_size), UNTRIED, jnp.float32),
+            slot=jnp.zeros(self.num_rooms, jnp.int32),
+            fresh=jnp.zeros(self.num_rooms, bool),
+        )
+
+    def draw_bank(self, bank: RoomBank, key: jax.Array, hp, stream: jax.Array, block) -> RoomBank:
+        """Every environment's draw at the renewal of block `block` (`draw_room` per row); the rows of
+        family "fixed" never draw fresh (their room is their playground)."""
+        fresh_prob = jnp.where(self.banked, jnp.asarray(hp["env.room_fresh"], jnp.float32), 0.0)
+        fresh_counters = self.block_counters(stream, jnp.asarray(block, jnp.uint32) + jnp.uint32(self.bank_size))
+        keys = jax.random.split(key, self.num_rooms)
+        rooms, p, slot, fresh = jax.vmap(draw_room, in_axes=(0, 0, 0, 0, 0, None))(
+            keys, bank.rooms, bank.p, fresh_counters, fresh_prob, hp["env.room_floor"]
+        )
+        return RoomBank(rooms=rooms, p=p, slot=slot, fresh=fresh)
+
+    def _bank_world(self, state, hp, ep):
+        """At an episode's reset: on a renewal (ep % env.room_every == 0) each environment draws
+        from its bank and its room is generated; otherwise it keeps its room (and slot)."""
+        every = hp["env.room_every"]
+        key = jax.random.fold_in(state.key, ROOM_BANK)
+
+        def renew():
+            bank = self.draw_bank(state.bank, key, hp, state.room_stream, ep // every)
+            return bank, self.rooms_at(bank.rooms[jnp.arange(self.num_rooms), bank.slot], density(hp, ep))
+
+        def keep():
+            return state.bank.replace(fresh=jnp.zeros_like(state.bank.fresh)), state.world
+
+        bank, world = jax.lax.cond(ep % every == 0, renew, keep)
+        return state.replace(bank=bank, world=world), world
+
+    def score(self, bank: RoomBank, hp, goals: jax.Array, attempts: jax.Array) -> RoomBank:
+        """At an episode's end: each environment's goal share (goals / attempts, i32[environments]
+        each, summed over the episode) updates p of its current room (`update_score`)."""
+        outcome = goals.astype(jnp.float32) / jnp.maximum(attempts, 1).astype(jnp.float32)
+        rate = jnp.where(self.banked, jnp.asarray(hp["env.room_ema"], jnp.float32), 0.0)
+        return bank.replace(p=jax.vmap(update_score)(bank.p, bank.slot, outcome, rate))
+
+    def bank_metrics(self, bank: RoomBank) -> dict:
+        """Per environment f32[environments]: `room_p`, the mean p of its bank, and `fresh_rooms`,
+        1 if it drew a fresh room at this episode's start; NaN on rows of family "fixed"."""
+        nan = jnp.float32(jnp.nan)
+        return {
+            "room_p": jnp.where(self.banked, jnp.mean(bank.p, axis=1), nan),
+            "fresh_rooms": jnp.where(self.banked, bank.fresh.astype(jnp.float32), nan),
+        }
+
+
+@struct.dataclass
+class RoomBank:
+    """The learnability curriculum's state of one seed (`TrainState.bank`). One bank per
+    environment, so per robot with env.envs_per_robot = 1: p is a property of a room *and the
+    policy that plays it*, so no bank is shared between robots (clients with their own networks
+    and, in a mixed fleet, their own families); and per environment rather than per robot with N > 1,
+    so that no two draws of one episode contend for one slot (a fresh room replacing a slot another
+    environment is playing, two outcomes for one score): every operation is one vmap over rows."""
+
+    rooms: jax.Array  # u32[environments, B] room counters (`TrainRooms.rooms_at`)
+    p: jax.Array  # f32[environments, B] each room's recent goal share (EMA); UNTRIED = 0.5 never tried
+    slot: jax.Array  # i32[environments] the slot of each environment's current room
+    fresh: jax.Array  # bool[environments] its room was drawn fresh at this episode's start
+
+
+def learnability_weights(p: jax.Array, floor) -> jax.Array:
+    """The probabilities f32[B] of drawing each bank room: p(1 - p) + floor, normalised. The
+    floor (env.room_floor > 0) keeps a bank whose rooms are all solved (p = 1) or all hopeless
+    (p = 0) sampling, uniformly then."""
+    w = p * (1.0 - p) + floor
+    return w / jnp.sum(w)
+
+
+def draw_room(key: jax.Array, rooms: jax.Array, p: jax.Array, fresh_counter: jax.Array, fresh_prob, floor):
+    """One environment's draw from its bank (rooms u32[B], p f32[B]): with probability `fresh_prob`
+    the fresh room `fresh_counter`, which replaces the bank's least learnable room (the lowest
+    p(1 - p), ties to the lowest slot) with p = UNTRIED; else a bank room drawn with
+    `learnability_weights(p, floor)`. Returns (rooms, p, slot i32[], fresh bool[]).
+
+    Why the least learnable: SFL keeps the rooms of highest learnability; a solved or hopeless room
+    teaches least. Untried rooms score highest (0.25), so a fresh room is not replaced before it
+    was played once."""
+    k_fresh, k_slot = jax.random.split(key)
+    fresh = jax.random.uniform(k_fresh) < fresh_prob
+    score = p * (1.0 - p)
+    drawn = jax.random.categorical(k_slot, jnp.log(score + floor))
+    slot = jnp.where(fresh, jnp.argmin(score), drawn).astype(jnp.int32)
+    rooms = jnp.where(fresh, rooms.at[slot].set(fresh_counter), rooms)
+    p = jnp.where(fresh, p.at[slot].set(UNTRIED), p)
+    return rooms, p, slot, fresh
+
+
+def update_score(p: jax.Array, slot: jax.Array, outcome: jax.Array, rate) -> jax.Array:
+    """p f32[B] with p[slot] <- (1 - rate) p[slot] + rate * outcome (outcome in [0, 1]): a room
+    solved every time rises to 1 as 1 - (1 - p0)(1 - rate)^n."""
+    return p.at[slot].set((1.0 - rate) * p[slot] + rate * outcome)
 
 
 def _per_env(world: World, per: int) -> World:

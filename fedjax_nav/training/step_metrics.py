@@ -36,6 +36,9 @@ class StepMetrics:
     fed_events: jax.Array  # i32[] 1 on a federated step inside the episode
     fed_clients: jax.Array  # i32[] clients that exchanged models in that step's round
     fed_skipped: jax.Array  # i32[] 1 if that round had too few participants
+    # env.room_sampling = learnability only (training/rooms.py), None otherwise: per environment
+    env_goals: jax.Array | None = None  # i32[environments] 1 on a goal
+    env_attempts: jax.Array | None = None  # i32[environments] 1 where an attempt ends (goal, collision, time-out)
 
 
 def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:

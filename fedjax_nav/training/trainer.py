@@ -72,6 +72,7 @@ class TrainState:
     # procedural rooms only (env.rooms = procedural; training/rooms.py), None otherwise:
     world: worlds.World | None = None  # the robots' current rooms [robots]
     room_stream: jax.Array | None = None  # u32[] this seed's offset in the training room stream
+    bank: Any = None  # env.room_sampling = learnability: rooms.RoomBank (each environment's rooms and scores)
     # learners with a memory (PPO: its GRU states, empty without a GRU), None otherwise:
     memory: Any = None  # the learner's per-environment carry [environments, ...]
     first: jax.Array | None = None  # bool[environments]: obs starts an episode
@@ -150,6 +151,8 @@ class Trainer:
         if self.rooms.procedural:
             stream = self.rooms.stream(key)
             optional = {"room_stream": stream, "world": self.rooms.draw(stream, 0, room_density(hp, 0))}
+            if self.rooms.learnability:  # its slot 0 holds block 0's room: the world just drawn
+                optional["bank"] = self.rooms.init_bank(stream)
         params = self.env_params(hp, optional.get("world"))
         obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_envs), params)
         memory = L.memory(self.nets)
@@ -272,6 +275,10 @@ class Trainer:
             memory=memory,
             first=None if state.first is None else term,  # after a goal or collision obs2 is a start
         )
+        outcome = {}
+        if self.rooms.learnability:  # per environment, for its room's score: an attempt ends in a goal,
+            # a collision (terminated) or the episode's time-out (truncated, the last step only)
+            outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
         fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
             fed_now = (g + 1) % hp["fed.period"] == 0
@@ -285,6 +292,7 @@ class Trainer:
             fed_events=fed_now.astype(jnp.int32),
             fed_clients=fs["clients"],
             fed_skipped=fs["skipped"],
+            **outcome,
         )
         return state, out
 
@@ -306,6 +314,8 @@ class Trainer:
 
         zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(step, state, steps[0])[1])
         (state, sums), _ = jax.lax.scan(body, (state, zeros), steps)
+        if self.rooms.learnability:  # the episode's goal share scores each environment's room
+            state = state.replace(bank=self.rooms.score(state.bank, hp, sums.env_goals, sums.env_attempts))
         fed_end, fs = jnp.int32(0), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
             fed_now = (ep + 1) % hp["fed.period"] == 0
@@ -318,6 +328,8 @@ class Trainer:
         metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
         metrics["epsilon"] = state.epsilon
         metrics["params_finite"] = jax.vmap(all_finite)(self.learner.shared(state.agents))  # [n_nets]
+        if self.rooms.learnability:  # room_p, fresh_rooms: [robots], means over each robot's environments
+            metrics |= {k: self._per_robot(v, jnp.mean) for k, v in self.rooms.bank_metrics(state.bank).items()}
         if self.probe is not None:  # run.eval_every: greedy success on the held-out probe, NaN between
             every = self.cfg.run.eval_every
             metrics["eval_success"] = jax.lax.cond(
