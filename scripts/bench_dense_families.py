@@ -1,6 +1,6 @@
 """The env step's cost in the procedural families, dense against sparse, at a training-like batch.
 
-    python scripts/bench_dense_families.py [--families mixture,forest,warehouse,maze,cave]
+    python scripts/bench_dense_families.py [--families mixture,forest,warehouse,maze,cave,office,corridors]
         [--robots 5 --envs 64 --steps 200 --repeats 9] [--record docs/dense_rooms.md]
 
 --robots x --envs environments, each in its own room of the family's default spec
@@ -8,9 +8,10 @@
 per-pose layout of a training run): random actions through `NavEnv.step` (move, 24-beam cast,
 clearance, reward, reset on a collision) in one jitted `lax.scan` of --steps steps, vmapped over
 the environments, as `fedjax-nav bench env` does; and the geometry alone (one cast + one
-`nearest_distance` per environment, scripts/bench_dense.py's "step"). Families are timed in one
-process, alternated, median of --repeats (wall and CPU time: the machine may be shared); ratios
-are against the first family listed.
+`nearest_distance` per environment, scripts/bench_dense.py's "step"); and drawing the rooms
+themselves (`generate_batch` of the --robots x --envs keys: rooms generated per second). Families
+are timed in one process, alternated, median of --repeats (wall and CPU time: the machine may be
+shared); ratios are against the first family listed (default: every family, `mixture` first).
 """
 
 from __future__ import annotations
@@ -41,9 +42,10 @@ from fedjax_nav.worlds import procedural, rooms, suites  # noqa: E402
 
 
 def family_cases(family: str, n: int, steps: int):
-    """((env rollout, args), (geometry, args), rows) over n rooms of `family`."""
+    """((env rollout, args), (geometry, args), (generator, args), rows) over n rooms of `family`."""
     spec = rooms.make_spec(family)
-    world = procedural.generate_batch(jax.vmap(suites.train_room_key)(jnp.arange(n)), spec)
+    room_keys = jax.vmap(suites.train_room_key)(jnp.arange(n))
+    world = procedural.generate_batch(room_keys, spec)
     env, params = NavEnv(num_beams=NUM_BEAMS, max_range=MAX_RANGE), make_params(world)
 
     def rollout(key, params):
@@ -62,32 +64,35 @@ def family_cases(family: str, n: int, steps: int):
     poses = jnp.concatenate([world.starts[:, 0, :2], jnp.zeros((n, 1))], -1)
     geo = jax.jit(jax.vmap(step_geometry))
     env_case = (jax.jit(jax.vmap(rollout)), (keys, params))
-    return env_case, (geo, (world.segments, poses, world.circles)), rows_of(world)
+    gen_case = (procedural.generate_batch, (room_keys, spec))  # compiled above
+    return env_case, (geo, (world.segments, poses, world.circles)), gen_case, rows_of(world)
 
 
 def bench(families, robots: int, envs: int, steps: int, repeats: int) -> list[str]:
     n = robots * envs
     cases, rows, comp = {}, {}, {}
     for fam in families:
-        env_case, geo_case, rows[fam] = family_cases(fam, n, steps)
+        env_case, geo_case, gen_case, rows[fam] = family_cases(fam, n, steps)
         comp[fam] = compile_seconds(*env_case)
-        cases[(fam, "env")], cases[(fam, "geometry")] = env_case, geo_case
+        cases[(fam, "env")], cases[(fam, "geometry")], cases[(fam, "generate")] = env_case, geo_case, gen_case
     t, cpu = throughput(cases, repeats)
     ref = families[0]
     lines = [
         f"{robots} robots x {envs} environments = {n} rooms (one each), {steps} random-action env steps per call; "
-        f"geometry: one cast + clearance per room; median of {repeats} alternated repeats.",
+        f"geometry: one cast + clearance per room; generated: `generate_batch` of the {n} rooms; median of "
+        f"{repeats} alternated repeats.",
         "",
         f"| family | rows (M + C) | env compile s | env agent-steps/s | vs {ref} | per CPU-s | vs {ref} "
-        f"| geometry steps/s | vs {ref} |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"| geometry steps/s | vs {ref} | rooms generated/s | vs {ref} |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for fam in families:
-        (m, c), e, g = rows[fam], (fam, "env"), (fam, "geometry")
+        (m, c), e, g, r = rows[fam], (fam, "env"), (fam, "geometry"), (fam, "generate")
         lines.append(
             f"| {fam} | {m + c} ({m} + {c}) | {comp[fam]:.2f} | {n * steps / t[e]:,.0f} "
             f"| {t[(ref, 'env')] / t[e]:.2f}x | {n * steps / cpu[e]:,.0f} | {cpu[(ref, 'env')] / cpu[e]:.2f}x "
-            f"| {n / t[g]:,.0f} | {t[(ref, 'geometry')] / t[g]:.2f}x |"
+            f"| {n / t[g]:,.0f} | {t[(ref, 'geometry')] / t[g]:.2f}x "
+            f"| {n / t[r]:,.0f} | {t[(ref, 'generate')] / t[r]:.2f}x |"
         )
         print(lines[-1], flush=True)
     return lines
@@ -95,7 +100,8 @@ def bench(families, robots: int, envs: int, steps: int, repeats: int) -> list[st
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--families", default="mixture,forest,warehouse,maze,cave")
+    default = ("mixture",) + rooms.DENSE_FAMILIES + rooms.INDOOR_FAMILIES
+    ap.add_argument("--families", default=",".join(default), help="comma-separated families (first: the reference)")
     ap.add_argument("--robots", type=int, default=5)
     ap.add_argument("--envs", type=int, default=64, help="environments per robot")
     ap.add_argument("--steps", type=int, default=200, help="env steps per timed call")

@@ -7,8 +7,9 @@ For each family: `<family>.png`, rooms of room seeds 0 .. rooms-1 with the famil
 (the same rooms as ``fedjax-nav worlds generate --family F --seed S``), drawn with
 `fedjax_nav.env.render.draw_world`; a dense family's rooms also show their clear network (dashed
 green). Plus `reserved.png`: two rooms with their reserved network (the paths kept clear of
-obstacles, see the solvability argument in docs/generator.md), and `density.png`: one room of each
-dense family at densities 0.25, 0.5 and 1.
+obstacles, see the solvability argument in docs/generator.md), `density.png`: one room of each
+dense family at densities 0.25, 0.5 and 1, and `density_indoor.png`: the same for the indoor
+families (office, corridors).
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ DENSE_COUNTS = {
     "warehouse": (("racks", "racks"), ("pallets", "pallets")),
     "maze": (("cells", "cells"), ("maze_walls", "wall sides")),
     "cave": (("occupied", "rock cells"), ("outline_runs", "edges")),
+    "office": (("rooms", "rooms"), ("obstacles", "obstacles")),
+    "corridors": (("branches", "branches"), ("side_rooms", "rooms")),
 }
 
 
@@ -67,16 +70,16 @@ def draw_family(family: str, n: int, out: Path, dpi: int) -> Path:
         W, H = np.asarray(w.size)
         ax = fig.add_subplot(1, n, i + 1)
         render.draw_world(ax, w, title=f"{family}, seed {s}\n{W:.1f} x {H:.1f} m; {counts(family, spec, info, i)}")
-        if family in gen.DENSE_FAMILIES:
+        if family in gen.DENSE_FAMILIES + gen.INDOOR_FAMILIES:
             draw_network(ax, info, i)
     path = out / f"{family}.png"
     fig.savefig(path, dpi=dpi)
     return path
 
 
-def draw_density(out: Path, dpi: int, seed: int = 1, densities=(0.25, 0.5, 1.0)) -> Path:
-    """One room of each dense family (rows) at each density (columns)."""
-    fams = gen.DENSE_FAMILIES
+def draw_density(out: Path, dpi: int, seed: int = 1, densities=(0.25, 0.5, 1.0), fams=None, name="density") -> Path:
+    """One room of each of `fams` (rows; default the dense families) at each density (columns)."""
+    fams = fams or gen.DENSE_FAMILIES
     fig = Figure(figsize=(3.3 * len(densities), 3.4 * len(fams)), layout="constrained")
     for r, family in enumerate(fams):
         spec = gen.make_spec(family)
@@ -86,7 +89,7 @@ def draw_density(out: Path, dpi: int, seed: int = 1, densities=(0.25, 0.5, 1.0))
             info = {k: np.asarray(v)[None] for k, v in info.items()}
             ax = fig.add_subplot(len(fams), len(densities), r * len(densities) + j + 1)
             render.draw_world(ax, w, title=f"{family}, seed {seed}, density {d:g}\n{counts(family, spec, info, 0)}")
-    path = out / "density.png"
+    path = out / f"{name}.png"
     fig.savefig(path, dpi=dpi)
     return path
 
@@ -165,6 +168,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "docs" / "img" / "generated"))
     ap.add_argument("--rooms", type=int, default=4)
     ap.add_argument("--dpi", type=int, default=render.DPI)
+    ap.add_argument("--density-seed", type=int, default=3, help="the indoor families' room in density_indoor.png")
     ap.add_argument("--time", type=int, default=None, metavar="N", help="time generating N rooms instead of drawing")
     ap.add_argument("--families", default=",".join(gen.FAMILIES), help="comma-separated families (default: all)")
     args = ap.parse_args(argv)
@@ -183,6 +187,8 @@ def main(argv=None) -> int:
         print(draw_reserved(out, args.dpi))
     if set(gen.DENSE_FAMILIES) <= set(families):
         print(draw_density(out, args.dpi))
+    if set(gen.INDOOR_FAMILIES) <= set(families):
+        print(draw_density(out, args.dpi, seed=args.density_seed, fams=gen.INDOOR_FAMILIES, name="density_indoor"))
     return 0
 
 

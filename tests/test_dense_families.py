@@ -52,7 +52,7 @@ def obstacles(room):
 
 
 def test_families_and_their_padded_shapes():
-    assert rooms.FAMILIES == rooms.BASE_FAMILIES + rooms.DENSE_FAMILIES
+    assert rooms.FAMILIES == rooms.BASE_FAMILIES + rooms.DENSE_FAMILIES + rooms.INDOOR_FAMILIES
     nx, ny = rooms.maze_grid(rooms.make_spec("maze"))  # 10 m / 0.8 m cells
     assert (nx, ny) == (12, 12)
     rows, secs = rooms.warehouse_slots(rooms.make_spec("warehouse"))  # 18 m, aisles 0.9, racks 0.6 x 2

@@ -305,7 +305,8 @@ def add_worlds(sub) -> None:
     g.add_argument(
         "--family",
         required=True,
-        help="cylinders, boxes, walls, mixture, or a dense one: forest, warehouse, maze, cave (docs/generator.md)",
+        help="cylinders, boxes, walls, mixture, a dense one: forest, warehouse, maze, cave, or an indoor one: "
+        "office, corridors (docs/generator.md)",
     )
     g.add_argument(
         "--seed",

@@ -30,7 +30,19 @@ ROBUST_AGGREGATORS = ("method", "mean", "median", "trimmed_mean", "krum", "geome
 ATTACKS = ("none", "noise", "scale", "sign_flip", "zeros", "stale")
 ROOM_SOURCES = ("fixed", "procedural")
 # fedjax_nav.worlds.FAMILIES + "fixed" (tests/test_dense_families.py keeps them equal)
-ROOM_FAMILIES = ("cylinders", "boxes", "walls", "mixture", "forest", "warehouse", "maze", "cave", "fixed")
+ROOM_FAMILIES = (
+    "cylinders",
+    "boxes",
+    "walls",
+    "mixture",
+    "forest",
+    "warehouse",
+    "maze",
+    "cave",
+    "office",
+    "corridors",
+    "fixed",
+)
 # The `learner` choices and those that learn on-policy (no replay buffer to share), kept equal to
 # fedjax_nav.agents.learners.LEARNERS by tests/test_learner_trainer.py (config does not import jax).
 LEARNERS = ("ddpg", "td3", "sac", "ppo")
@@ -77,7 +89,8 @@ class EnvConfig:
     room_families: tuple = _f(
         ("mixture",),
         doc="procedural rooms' family, one for every robot or one per robot: "
-        "cylinders, boxes, walls, mixture, the dense forest, warehouse, maze, cave (docs/generator.md), "
+        "cylinders, boxes, walls, mixture, the dense forest, warehouse, maze, cave, the indoor office, corridors "
+        "(docs/generator.md), "
         "or fixed = keep that robot's env.worlds room (static)",
     )
     room_every: int = _f(1, lo=1, hi=1_000_000, traced=True, doc="episodes between new procedural rooms")

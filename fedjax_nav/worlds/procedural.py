@@ -9,10 +9,11 @@ per episode inside `lax.scan`::
 
 Families (`RoomSpec.family`): ``cylinders`` (circles only), ``boxes`` (rotated rectangles
 only), ``walls`` (rooms and corridors: interior walls with one doorway each) and ``mixture``
-(all three), built here; and the dense families ``forest``, ``warehouse``, ``maze`` and ``cave``,
-built in their own modules (`DENSE_BUILDERS`), each solvable by an argument of its own (their
-module docstrings). The spec's ranges of the kinds a family does not use are ignored and take no
-array space. Parameters, defaults and allowed ranges: `RoomSpec` and docs/generator.md.
+(all three), built here; the dense families ``forest``, ``warehouse``, ``maze`` and ``cave``, and
+the indoor ones ``office`` (multi-room floors) and ``corridors``, built in their own modules
+(`DENSE_BUILDERS`), each solvable by an argument of its own (their module docstrings). The
+spec's ranges of the kinds a family does not use are ignored and take no array space.
+Parameters, defaults and allowed ranges: `RoomSpec` and docs/generator.md.
 
 Solvability, by construction (no search, no resampling, no fallback needed)
 ----------------------------------------------------------------------------
@@ -67,7 +68,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from fedjax_nav.worlds import World, cave, forest, maze, warehouse
+from fedjax_nav.worlds import World, cave, corridors, forest, maze, office, warehouse
 from fedjax_nav.worlds.rooms import (
     _START_TRIES,
     RoomSpec,
@@ -176,8 +177,9 @@ def _thin(n: jax.Array, density) -> jax.Array:
     return jnp.clip(jnp.floor(jnp.asarray(density, jnp.float32) * n), 0, n).astype(jnp.int32)
 
 
-# The dense families build their rooms in their own modules (one each; shared parts in layout.py).
+# The dense and indoor families build their rooms in their own modules (one each; shared parts in layout.py).
 DENSE_BUILDERS = {"forest": forest.build, "warehouse": warehouse.build, "maze": maze.build, "cave": cave.build}
+DENSE_BUILDERS |= {"office": office.build, "corridors": corridors.build}
 
 
 def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str, jax.Array]]:

@@ -18,25 +18,23 @@ from fedjax_nav.worlds.input_files import shorten, show
 
 # The first four families draw cylinders, boxes and walls around a reserved network
 # (`procedural`); the dense ones build a structure (forest, warehouse, maze, cave) in their own
-# modules (fedjax_nav/worlds/forest.py, warehouse.py, maze.py, cave.py).
+# modules (fedjax_nav/worlds/forest.py, warehouse.py, maze.py, cave.py), and so do the indoor ones
+# (multi-room offices, corridors: office.py, corridors.py). FAMILIES is the one list of them all;
+# new families go at the end of a new tuple, so the suites' seed blocks of the others stay.
 BASE_FAMILIES = ("cylinders", "boxes", "walls", "mixture")
 DENSE_FAMILIES = ("forest", "warehouse", "maze", "cave")
-FAMILIES = BASE_FAMILIES + DENSE_FAMILIES
+INDOOR_FAMILIES = ("office", "corridors")
+FAMILIES = BASE_FAMILIES + DENSE_FAMILIES + INDOOR_FAMILIES
 # The fields a spec leaves None take the family's value (the room size: 4-12 m for the base families).
+_SIZES = {"forest": (8.0, 16.0), "warehouse": (10.0, 18.0), "maze": (5.0, 10.0), "cave": (5.0, 9.0)}
+_SIZES |= {"office": (10.0, 18.0), "corridors": (10.0, 18.0), None: (4.0, 12.0)}
 _BY_FAMILY = {
-    "width_min": {"forest": 8.0, "warehouse": 10.0, "maze": 5.0, "cave": 5.0, None: 4.0},
-    "width_max": {"forest": 16.0, "warehouse": 18.0, "maze": 10.0, "cave": 9.0, None: 12.0},
-    "height_min": {"forest": 8.0, "warehouse": 10.0, "maze": 5.0, "cave": 5.0, None: 4.0},
-    "height_max": {"forest": 16.0, "warehouse": 18.0, "maze": 10.0, "cave": 9.0, None: 12.0},
+    **{f"{side}_min": {f: lo for f, (lo, _) in _SIZES.items()} for side in ("width", "height")},
+    **{f"{side}_max": {f: hi for f, (_, hi) in _SIZES.items()} for side in ("width", "height")},
     "trail_points": {"cave": 2, None: 6},
 }
 # Which obstacle kinds each base family draws.
-_KINDS = {
-    "cylinders": ("cylinders",),
-    "boxes": ("boxes",),
-    "walls": ("walls",),
-    "mixture": ("cylinders", "boxes", "walls"),
-}
+_KINDS = {k: (k,) for k in ("cylinders", "boxes", "walls")} | {"mixture": ("cylinders", "boxes", "walls")}
 _START_TRIES = 64  # candidates per start for the start-goal distance rule
 
 
@@ -50,11 +48,12 @@ class RoomSpec:
     ``[*_min, *_max]`` range (integers inclusive). `check_spec` enforces the allowed ranges
     (the ``range`` metadata of each field) and the rules between fields.
 
-    family: one of `FAMILIES`: "cylinders", "boxes", "walls", "mixture" (all three kinds), or a
-        dense family "forest", "warehouse", "maze", "cave" (docs/generator.md); the fields of
-        the kinds a family does not use are ignored.
+    family: one of `FAMILIES`: "cylinders", "boxes", "walls", "mixture" (all three kinds), a
+        dense family "forest", "warehouse", "maze", "cave", or an indoor one "office",
+        "corridors" (docs/generator.md); the fields of the kinds a family does not use are ignored.
     width_*, height_*: the inner size of the room (walls at +-W/2, +-H/2); None (the default)
-        is the family's default: 4-12 m, forest 8-16, warehouse 10-18, maze 5-10, cave 5-9.
+        is the family's default: 4-12 m, forest 8-16, warehouse 10-18, maze 5-10, cave 5-9,
+        office and corridors 10-18.
     cylinders_*, radius_*: number of cylinders and their radius.
     boxes_*, box_side_*: number of boxes and their side lengths (each side drawn separately);
         the yaw is uniform in [0, pi).
@@ -76,6 +75,10 @@ class RoomSpec:
         with a fraction maze_loops of its remaining inner walls removed.
     cave_*: cave: a cellular automaton (initial fill, smoothing steps) on a grid of cave cells,
         carved around the trail network; its outline as at most cave_segments segments.
+    office_*: office: a grid of rooms with doors along a spanning tree (and extra ones), desks and
+        round things in the rooms (fedjax_nav/worlds/office.py).
+    corridor_*: corridors: a spine corridor, branches ending in side rooms or dead ends, turns,
+        boxes of clutter (fedjax_nav/worlds/corridors.py).
     max_segments, max_circles, max_starts, max_goals: the padded array shapes; None = the
         least that fits the spec (`padded_shape`), a larger value pads further (e.g. to stack
         with other worlds).
@@ -132,6 +135,39 @@ class RoomSpec:
     cave_fill_max: float = _f(0.55, 0.0, 1.0, "cave: initial occupied fraction, upper end")
     cave_smoothing: int = _f(1, 0, 8, "cave: cellular-automaton smoothing steps")
     cave_segments: int = _f(192, 8, 2048, "cave: segment rows of the outline (longer outlines are cut)")
+    office_cols_min: int = _f(2, 1, 8, "office: rooms along the floor's first side, lower end")
+    office_cols_max: int = _f(4, 1, 8, "office: rooms along the floor's first side, upper end")
+    office_rows_min: int = _f(2, 1, 8, "office: rooms along the other side, lower end")
+    office_rows_max: int = _f(3, 1, 8, "office: rooms along the other side, upper end")
+    office_room_min: float = _f(3.0, 1.0, 15.0, "office: least room side before the jitter (m; fewer rooms fit)")
+    office_jitter: float = _f(0.15, 0.0, 0.4, "office: each inner wall line moved by up to this share of a room side")
+    office_door_min: float = _f(0.7, 0.1, 4.0, "office: door width, lower end (m)")
+    office_door_max: float = _f(1.2, 0.1, 4.0, "office: door width, upper end (m)")
+    office_extra_doors: float = _f(0.3, 0.0, 1.0, "office: probability of a door in a wall off the spanning tree")
+    office_desks_min: int = _f(2, 0, 16, "office: desks per room, lower end")
+    office_desks_max: int = _f(5, 0, 16, "office: desks per room, upper end")
+    office_desk_depth_min: float = _f(0.5, 0.1, 4.0, "office: desk depth, lower end (m)")
+    office_desk_depth_max: float = _f(0.8, 0.1, 4.0, "office: desk depth, upper end (m)")
+    office_desk_length_min: float = _f(0.8, 0.1, 4.0, "office: desk length, lower end (m)")
+    office_desk_length_max: float = _f(1.6, 0.1, 4.0, "office: desk length, upper end (m)")
+    office_cylinders_min: int = _f(4, 0, 16, "office: round things (chairs, columns, bins) per room, lower end")
+    office_cylinders_max: int = _f(8, 0, 16, "office: round things per room, upper end")
+    office_radius_min: float = _f(0.12, 0.03, 1.0, "office: radius of a round thing, lower end (m)")
+    office_radius_max: float = _f(0.3, 0.03, 1.0, "office: radius of a round thing, upper end (m)")
+    office_boxes: int = _f(32, 1, 1024, "office: desk slots (a room with more loses a random few)")
+    office_circles: int = _f(48, 1, 1024, "office: round-thing slots (a room with more loses a random few)")
+    corridor_width_min: float = _f(0.8, 0.1, 5.0, "corridors: corridor width, lower end (m)")
+    corridor_width_max: float = _f(1.5, 0.1, 5.0, "corridors: corridor width, upper end (m)")
+    corridor_branches_min: int = _f(1, 1, 16, "corridors: branches off the spine, lower end")
+    corridor_branches_max: int = _f(4, 1, 16, "corridors: branches off the spine, upper end")
+    corridor_turns: float = _f(0.5, 0.0, 1.0, "corridors: probability that an end of the spine turns into a branch")
+    corridor_rooms: float = _f(0.6, 0.0, 1.0, "corridors: probability that a branch ends in a side room")
+    corridor_room_min: float = _f(2.2, 0.5, 15.0, "corridors: side room side, lower end (m)")
+    corridor_room_max: float = _f(4.0, 0.5, 15.0, "corridors: side room side, upper end (m)")
+    corridor_boxes_min: int = _f(2, 0, 32, "corridors: boxes of clutter, lower end")
+    corridor_boxes_max: int = _f(8, 0, 32, "corridors: boxes of clutter, upper end")
+    corridor_box_side_min: float = _f(0.2, 0.05, 2.0, "corridors: clutter box side, lower end (m)")
+    corridor_box_side_max: float = _f(0.6, 0.05, 2.0, "corridors: clutter box side, upper end (m)")
     max_segments: int | None = _f(None, 4, 4096, "padded segment rows (None: least that fits)")
     max_circles: int | None = _f(None, 1, 4096, "padded circle rows (None: least that fits)")
     max_starts: int | None = _f(None, 1, 256, "padded start rows (None: starts_max)")
@@ -216,6 +252,25 @@ def warehouse_slots(spec: RoomSpec) -> tuple[int, int]:
     return max(0, int((side - a) // (spec.rack_depth_min + a))), max(0, int((side - a) // (spec.rack_length_min + a)))
 
 
+def office_grid(spec: RoomSpec) -> tuple[int, int]:
+    """The office's static grid of rooms (columns, rows): the most either side of any floor holds
+    (the layout may be turned by 90 degrees, so both sides are bounded by the longest)."""
+    cells = grid_cells(max(spec.width_max, spec.height_max), spec.office_room_min)
+    return min(spec.office_cols_max, cells), min(spec.office_rows_max, cells)
+
+
+def office_slots(spec: RoomSpec) -> tuple[int, int, int]:
+    """(wall-piece segment rows, desk slots, round-thing slots) of the office: 2 pieces per
+    shared wall (either side of its door), the slots at most one per possible piece of furniture."""
+    nx, ny = office_grid(spec)
+    n, walls = nx * ny, 2 * ((nx - 1) * ny + (ny - 1) * nx)
+    return (
+        walls,
+        min(spec.office_boxes, n * spec.office_desks_max),
+        min(spec.office_circles, n * spec.office_cylinders_max),
+    )
+
+
 def needed_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
     """The least (segments, circles, starts, goals) rows that fit every room of the spec."""
     S, G = spec.starts_max, spec.goals_max
@@ -227,6 +282,12 @@ def needed_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
         return 4 + maze_wall_rows(spec), 1, S, G
     if spec.family == "cave":
         return 4 + spec.cave_segments, 1, S, G
+    if spec.family == "office":
+        walls, boxes, circles = office_slots(spec)
+        return 4 + walls + 4 * boxes, max(1, circles), S, G
+    if spec.family == "corridors":
+        # per branch slot 4 spine pieces, 2 branch sides, an end cap, a side room's 5 walls; the 2 spine ends
+        return 4 + 12 * spec.corridor_branches_max + 2 + 4 * spec.corridor_boxes_max, 1, S, G
     n_cyl, n_box, n_wall = _counts(spec)
     return 4 + 2 * n_wall + 4 * n_box, max(1, n_cyl), S, G
 
@@ -236,6 +297,10 @@ def padded_shape(spec: RoomSpec) -> tuple[int, int, int, int]:
     need = needed_shape(spec)
     given = (spec.max_segments, spec.max_circles, spec.max_starts, spec.max_goals)
     return tuple(n if g is None else g for n, g in zip(need, given))
+
+
+# The fields of the form {base}_min, {base}_max (checked: max >= min).
+_PAIRS = tuple(n[:-4] for n in SPEC_FIELDS if n.endswith("_min") and f"{n[:-4]}_max" in SPEC_FIELDS)
 
 
 def check_spec(spec: RoomSpec) -> RoomSpec:
@@ -259,28 +324,7 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
             )
         if not lo <= v <= hi:
             raise WorldError(f"RoomSpec field '{name}' = {show(v)} is outside the allowed range [{lo}, {hi}] ({doc})")
-    for base in (
-        "width",
-        "height",
-        "cylinders",
-        "radius",
-        "boxes",
-        "box_side",
-        "walls",
-        "door_width",
-        "starts",
-        "goals",
-        "trees",
-        "trunk_radius",
-        "aisle_width",
-        "rack_depth",
-        "rack_length",
-        "pallets",
-        "pallet_side",
-        "maze_cell",
-        "cave_cell",
-        "cave_fill",
-    ):
+    for base in _PAIRS:
         lo_v, hi_v = getattr(spec, f"{base}_min"), getattr(spec, f"{base}_max")
         if hi_v < lo_v:
             _, lo, hi, _ = ranges[f"{base}_max"]
@@ -305,6 +349,7 @@ def check_spec(spec: RoomSpec) -> RoomSpec:
                 f"[{lo_room:g}, {hi_room:g}] for this spec"
             )
     _check_dense(spec, c, ranges)
+    _check_indoor(spec, c, ranges)
     need = needed_shape(spec)
     for name, n in zip(("max_segments", "max_circles", "max_starts", "max_goals"), need):
         v = getattr(spec, name)
@@ -336,6 +381,37 @@ def _check_dense(spec: RoomSpec, c: float, ranges) -> None:
             raise WorldError(
                 f"RoomSpec field 'maze_cell_max' = {spec.maze_cell_max!r} is outside the allowed range "
                 f"[maze_cell_min, min(width_min, height_min)] = [{spec.maze_cell_min:g}, {hi:g}] for this spec"
+            )
+
+
+def _check_indoor(spec: RoomSpec, c: float, ranges) -> None:
+    """The office's and corridors' rules between fields: the robot fits every door and corridor with c
+    beside it, furniture fits the least office room, a side room fits its slot and either side of the spine."""
+    side, prefix = min(spec.width_min, spec.height_min), {"office": "office_", "corridors": "corridor_"}
+    furniture = max(spec.office_desk_length_max, spec.office_desk_depth_max, 2 * spec.office_radius_max)
+    c2 = "2 (D_c + clearance_margin)"
+    rules = {  # field: (low, high, why); a why starting with ">" excludes the low end
+        "office_door_min": (2 * c, ranges["office_door_min"][2], f"> {c2}"),
+        "office_room_min": (
+            max(spec.office_door_max + 2 * c, furniture) / (1 - 2 * spec.office_jitter),
+            side / 2,
+            f"max(office_door_max + {c2}, the longest desk side, 2 office_radius_max) / (1 - 2 office_jitter) "
+            ".. min(width_min, height_min) / 2",
+        ),
+        "corridor_width_min": (2 * c, ranges["corridor_width_min"][2], f"> {c2}"),
+        "corridor_room_min": (
+            spec.corridor_width_max + 2 * c,
+            min(side / spec.corridor_branches_max, (side - spec.corridor_width_max) / 2),
+            f"corridor_width_max + {c2} .. min(width_min, height_min) / corridor_branches_max, and "
+            "(min(width_min, height_min) - corridor_width_max) / 2",
+        ),
+    }
+    for name, (lo, hi, why) in rules.items():
+        v, open_lo = getattr(spec, name), why.startswith(">")
+        if name.startswith(prefix.get(spec.family, "-")) and ((v <= lo if open_lo else v < lo) or v > hi):
+            raise WorldError(
+                f"RoomSpec field '{name}' = {v!r} is outside the allowed range {'(' if open_lo else '['}{lo:g}, "
+                f"{hi:g}] for this spec ({why})"
             )
 
 

@@ -20,7 +20,15 @@ import numpy as np
 
 from fedjax_nav.worlds import World, WorldError, from_dict, wall_segments
 from fedjax_nav.worlds.procedural import generate_batch, jitted_generator
-from fedjax_nav.worlds.rooms import BASE_FAMILIES, DENSE_FAMILIES, FAMILIES, RoomSpec, make_spec, parse_overrides
+from fedjax_nav.worlds.rooms import (
+    BASE_FAMILIES,
+    DENSE_FAMILIES,
+    FAMILIES,
+    INDOOR_FAMILIES,
+    RoomSpec,
+    make_spec,
+    parse_overrides,
+)
 
 ROOM_ROOT = 0x5EED  # root of every room key
 TEST_SEED_BASE = 2**31  # room seeds >= this are reserved for the held-out test suites
@@ -88,6 +96,22 @@ SUITES.update(
         for i, fam in enumerate(DENSE_FAMILIES)
     }
 )
+# The same three suites for each indoor family (office, corridors), in blocks 24 and up, after the
+# dense families' (whose blocks and rooms stay those they had).
+_I, _B = len(INDOOR_FAMILIES), 12 + 3 * _D
+SUITES.update({f"{fam}-50": Suite(fam, 50, _B + i) for i, fam in enumerate(INDOOR_FAMILIES)})
+SUITES.update(
+    {
+        f"{fam}-50x4": Suite(fam, 50, _B + _I + i, (("goals_min", 4), ("goals_max", 4)))
+        for i, fam in enumerate(INDOOR_FAMILIES)
+    }
+)
+SUITES.update(
+    {
+        f"{fam}-probe": Suite(fam, 4, _B + 2 * _I + i, (("goals_min", 2), ("goals_max", 2)))
+        for i, fam in enumerate(INDOOR_FAMILIES)
+    }
+)
 # Named groups of suites (one family each): `suite_rooms` accepts a suite or a group name.
 SUITE_GROUPS: dict[str, tuple[str, ...]] = {
     "heldout": tuple(f"{fam}-50x4" for fam in BASE_FAMILIES),
@@ -96,6 +120,9 @@ SUITE_GROUPS: dict[str, tuple[str, ...]] = {
     "dense-heldout": tuple(f"{fam}-50x4" for fam in DENSE_FAMILIES),
     "dense-50": tuple(f"{fam}-50" for fam in DENSE_FAMILIES),
     "dense-probe": tuple(f"{fam}-probe" for fam in DENSE_FAMILIES),
+    "indoor-heldout": tuple(f"{fam}-50x4" for fam in INDOOR_FAMILIES),
+    "indoor-50": tuple(f"{fam}-50" for fam in INDOOR_FAMILIES),
+    "indoor-probe": tuple(f"{fam}-probe" for fam in INDOOR_FAMILIES),
 }
 
 
