@@ -394,11 +394,17 @@ def test_every_traced_field_is_an_input_the_program_uses():
             ROOT / "configs" / "thesis" / "flddpg.yaml", TINY_SET + ["run.episodes=1", "robot.model=turtlebot3_burger"]
         )
     )
-    # env.room_every acts in a run on procedural rooms (docs/generalization.md)
+    # env.room_every acts in a run on procedural rooms, the learnability fields with room_sampling: learnability
     unused &= unused_by(
         load_config(
             ROOT / "configs" / "thesis" / "flddpg.yaml",
-            TINY_SET + ["run.episodes=1", "env.rooms=procedural", "env.room_families=[cylinders]"],
+            TINY_SET
+            + [
+                "run.episodes=1",
+                "env.rooms=procedural",
+                "env.room_families=[cylinders]",
+                "env.room_sampling=learnability",
+            ],
         )
     )
     # each learner's own section acts when that learner trains (agents/learners.py)
