@@ -25,7 +25,13 @@ def test_sweep_bench_times_one_by_one_and_batched():
     rows = bench.bench_sweep(
         points=2,
         episodes=1,
-        overrides=("env.episode_length=16", "ddpg.batch_size=8", "ddpg.hidden=16", "ddpg.buffer_size=64"),
+        overrides=(
+            "env.episode_length=16",
+            "ddpg.batch_size=8",
+            "ddpg.hidden=16",
+            "ddpg.buffer_size=64",
+            "env.worlds=[train-0,train-0,train-0,train-0,train-0]",  # the smallest room: compiles fastest
+        ),
     )
     (r,) = rows
     assert r["points"] == 2 and r["one_by_one_s"] > 0 and r["sweep_s"] > 0
@@ -47,7 +53,8 @@ def test_a_train_row_names_procedural_rooms():
 
 
 def test_a_learner_row_counts_every_environment_and_its_gradient_steps():
-    tiny = ("env.episode_length=8", "env.worlds=[train-0, train-2]", "ppo.hidden=8", "ppo.rollout=4")
+    # 2 robots in the smallest room (compile time grows with the rooms' obstacles)
+    tiny = ("env.episode_length=8", "env.worlds=[train-0, train-0]", "ppo.hidden=8", "ppo.rollout=4")
     rows = bench_learners.bench_learners((*tiny, "env.envs_per_robot=3"), rows=(("ppo", ()),), env_batch=6, brax=False)
     train, env, env_procedural = rows
     assert train["learner"] == "ppo" and train["envs_per_robot"] == 3 and train["gflops"] > 0

@@ -42,7 +42,9 @@ SEEDS = 2
 ROBOTS = 2
 TINY = {
     "method": "iddpg",
-    "env": {"worlds": ["train-0", "train-2"], "episode_length": 16},
+    # the smallest shipped room for both robots: every subprocess traces the trainer again, and
+    # tracing and compiling grow with the rooms' obstacles (train-2 has 30)
+    "env": {"worlds": ["train-0", "train-0"], "episode_length": 16},
     "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
     "run": {"episodes": EPISODES, "seeds": SEEDS, "chunk_episodes": 1, "checkpoint_every": 2, "keep_checkpoints": 3},
 }
@@ -54,7 +56,9 @@ TIMEOUT = 300  # s, per subprocess (a loaded 2-core machine)
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    e = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
+    # every compilation into the shared cache, the small ones too (jax skips those under 1 s by
+    # default, and each subprocess compiles dozens of them)
+    e = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1", JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
     e.setdefault("JAX_COMPILATION_CACHE_DIR", str(tmp_path_factory.mktemp("jax_cache")))
     return e
 

@@ -25,6 +25,8 @@ TINY = [
     "ppo.minibatches=2",
     "ppo.epochs=1",
     "ppo.hidden=16",
+    # 5 robots in the smallest shipped room: compile time grows with the rooms' obstacles
+    "env.worlds=[train-0,train-0,train-0,train-0,train-0]",
 ]
 
 
@@ -58,17 +60,23 @@ def test_params_hold_what_the_learner_shares(learner_run):
 
 
 def test_resume_from_the_learners_checkpoint_equals_the_uninterrupted_run(learner_run, tmp_path):
-    import dataclasses
+    """The uninterrupted run resumed from its episode-1 checkpoint (the one of episode 2 removed and
+    saved again, the results written again) ends with the same parameters, bit for bit."""
+    import json
+    import shutil
 
     from fedjax_nav.training.run import train
 
     name, cfg, out = learner_run
     if name != "ppo":  # off-policy state resumes as DDPG's does (tests/test_checkpoint.py); PPO's has empty leaves
         pytest.skip("resume of a replay-buffer learner: tests/test_checkpoint.py")
-    short = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, episodes=1))
-    train(short, tmp_path / "r", progress=False)
-    train(cfg, tmp_path / "r", progress=False, resume=True, allow_config_change=True)
-    with np.load(out / rundir.PARAMS) as a, np.load(tmp_path / "r" / rundir.PARAMS) as b:
+    resumed = tmp_path / "r"
+    shutil.copytree(out, resumed)
+    for f in (rundir.PARAMS, rundir.METRICS, rundir.SUMMARY):  # what the resumed run must write itself
+        (resumed / f).unlink()
+    train(cfg, resumed, progress=False, resume=True, from_checkpoint=1)
+    assert json.loads((resumed / rundir.SUMMARY).read_text())["resumed_from_episode"] == 1
+    with np.load(out / rundir.PARAMS) as a, np.load(resumed / rundir.PARAMS) as b:
         assert sorted(a.files) == sorted(b.files)
         for k in a.files:
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)
@@ -79,7 +87,9 @@ def test_both_evaluations_drive_the_learners_greedy_policy(learner_run):
     from fedjax_nav.evaluation.suite import evaluate_suite
 
     name, cfg, out = learner_run
-    ev = evaluate_run(out, attempts=1, max_steps=16)
+    # in the smallest shipped room, not the thesis arena (57 obstacles, unrolled in the compiled
+    # program): what is checked is the learner's policy in the protocol, not the room
+    ev = evaluate_run(out, "train-0", attempts=1, max_steps=16)
     assert ev.summary["episodes"] == len(ev.frame) > 0 and ev.frame["success"].isin([0, 1]).all()
     suite = evaluate_suite(out, "probe", attempts=1, max_steps=8)
     assert len(suite["episodes"]) > 0
@@ -125,12 +135,12 @@ def gru_run(learner_run):
     return dataclasses.replace(run, actor_params=jax.tree.unflatten(tree, leaves))
 
 
-def _hand_episode(run, agent: int, T: int, reset_every_step: bool):
-    """Episode 0 (goal 0, attempt 0) of agent `agent` in evaluate_run(run, "eval", attempts=1,
-    max_steps=T), written out step by step: the protocol's keys, noise and env, the learner's
-    greedy policy with its memory from `memory(nets)`, `first` at step 0 (or at every step)."""
+def _hand_protocol(run, T: int):
+    """What the hand-written episodes below share: the eval world, the protocol's env with its
+    noise, its params, and the env step and the learner's greedy policy each jitted once (eager,
+    every step dispatches the lidar's ops over the arena's 57 obstacles one by one: most of the
+    test's time)."""
     import jax
-    import jax.numpy as jnp
 
     from fedjax_nav import worlds
     from fedjax_nav.agents import learners
@@ -142,19 +152,39 @@ def _hand_episode(run, agent: int, T: int, reset_every_step: bool):
     w = worlds.load("eval")
     env = NavEnv(**{**envs.env_settings(cfg, "eval", noise=True, episode_length=T), "mode": "eval", "noise": True})
     params = make_params(w, **envs.eval_values(cfg, RANGE_NOISE, ACTION_NOISE))
+    learner = learners.get(cfg.learner)
+    nets = learner.make_nets(values(cfg))
+    greedy = jax.jit(lambda actor, obs, memory, first: learner.greedy(nets, actor, obs, memory, first))
+    return {
+        "world": w,
+        "env": env,
+        "params": params,
+        "learner": learner,
+        "nets": nets,
+        "step": jax.jit(env.step),
+        "greedy": greedy,
+    }
+
+
+def _hand_episode(run, protocol: dict, agent: int, T: int, reset_every_step: bool):
+    """Episode 0 (goal 0, attempt 0) of agent `agent` in evaluate_run(run, "eval", attempts=1,
+    max_steps=T), written out step by step: the protocol's keys, noise and env, the learner's
+    greedy policy with its memory from `memory(nets)`, `first` at step 0 (or at every step)."""
+    import jax
+    import jax.numpy as jnp
+
+    w, env, params = protocol["world"], protocol["env"], protocol["params"]
     G = int(w.num_goals)
     keys = jax.random.split(jax.random.key(0), run.num_agents * G).reshape(run.num_agents, G)
     k_reset, key = jax.random.split(keys[agent, 0])
     obs, state = env.reset(k_reset, params.replace(goal_index=0))
-    learner = learners.get(cfg.learner)
-    nets = learner.make_nets(values(cfg))
     actor = jax.tree.map(lambda x: x[agent], run.actor_params)
-    memory, poses = learner.memory(nets), [np.asarray(state.pose)]
+    memory, poses = protocol["learner"].memory(protocol["nets"]), [np.asarray(state.pose)]
     for t in range(T):
         key, k_step = jax.random.split(key)
         first = jnp.bool_(t == 0 or reset_every_step)
-        action, memory = learner.greedy(nets, actor, obs, memory, first)
-        obs, state, _, term, trunc, _ = env.step(k_step, state, action, params)
+        action, memory = protocol["greedy"](actor, obs, memory, first)
+        obs, state, _, term, trunc, _ = protocol["step"](k_step, state, action, params)
         poses.append(np.asarray(state.pose))
         if bool(term | trunc):
             break
@@ -166,13 +196,14 @@ def test_recurrent_evaluation_carries_the_hidden_state_through_the_episode(gru_r
 
     T = 16
     ev = evaluate_run(gru_run, "eval", attempts=1, max_steps=T)
+    protocol = _hand_protocol(gru_run, T)
     for agent in (0, 1):
         got = ev.result.poses[agent, 0, 0]
-        want = _hand_episode(gru_run, agent, T, reset_every_step=False)
+        want = _hand_episode(gru_run, protocol, agent, T, reset_every_step=False)
         np.testing.assert_allclose(got[: len(want)], want, atol=1e-4)
         assert int(ev.result.steps[agent, 0, 0]) == len(want) - 1
         # zeroing the GRU state at every step drives elsewhere: the carried state is what acts
-        forgetful = _hand_episode(gru_run, agent, T, reset_every_step=True)
+        forgetful = _hand_episode(gru_run, protocol, agent, T, reset_every_step=True)
         n = min(len(forgetful), len(want))
         assert np.abs(forgetful[:n] - want[:n]).max() > 1e-3
 

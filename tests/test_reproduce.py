@@ -4,7 +4,8 @@ notebook runs headless on the report, and on a fresh clone (no runs, nothing set
 committed under results/).
 
 The reduced programme (54 distinct configs x 2 seeds, 9 compiled groups, 8 evaluations) is run
-once per module: about 2-4 minutes on a 2-core CPU, most of it compilation.
+once per module: about 2 minutes on a 2-core CPU, most of it compilation (which is why the ci
+scale puts every robot in the smallest room and evaluates in a small 4-goal room).
 """
 
 import json
@@ -93,8 +94,11 @@ def test_table3_counts_match_eq25_at_the_run_scale(report):
 
 
 def test_every_evaluated_method_has_a_row(report):
-    out, _ = report
+    out, info = report
     ev = pd.read_csv(out / "eval_summary.csv")
+    # the ci scale evaluates in its small room, written beside the report and kept per point
+    assert info["eval_world"] == "ci-arena" and (out / "ci-arena.json").exists()
+    assert all((out / "points" / p / "eval" / "ci-arena" / "eval.json").exists() for p in ev["point"])
     assert list(ev["label"]) == ["iddpg", "seddpg", "snddpg", "flddpg", "pwddpg", "rwddpg", "gsddpg", "flsddpg"]
     assert (ev["episodes"] == 40).all()  # 2 seeds x 5 agents x 4 goals x 1 attempt (SNDDPG: 2 x 1 x 4 x 5)
     assert ev["success"].between(0, 1).all()

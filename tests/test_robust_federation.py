@@ -37,6 +37,8 @@ TINY = [
     "run.checkpoint_every=0",
     "run.episodes=2",
     "fed.period=1",
+    # 5 clients in the smallest shipped room (compile time grows with the rooms' obstacles)
+    "env.worlds=[train-0,train-0,train-0,train-0,train-0]",
 ]
 
 

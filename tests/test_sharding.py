@@ -381,7 +381,10 @@ def test_train_with_seeds_a_multiple_of_the_cores_spreads_them_by_default(tmp_pa
     cores = os.cpu_count()
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(
-        "method: flddpg\nenv: {episode_length: 8}\nddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
+        # 2 robots in the smallest shipped room: each subprocess compiles its own program, and the
+        # compile time grows with the robots' rooms (the default thesis rooms have up to 60 obstacles)
+        "method: flddpg\nenv: {episode_length: 8, worlds: [train-0, train-0]}\n"
+        "ddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
         "fed: {period: 1}\nrun: {episodes: 1, chunk_episodes: 1, checkpoint_every: 0}\n"
     )
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}

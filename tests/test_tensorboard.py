@@ -26,6 +26,8 @@ TINY = [
     "fed.period=1",
     "--set",
     "run.checkpoint_every=0",
+    "--set",  # the smallest room: compile time grows with the obstacles
+    "env.worlds=[train-0,train-0,train-0,train-0,train-0]",
     "--seeds",
     "2",
 ]
