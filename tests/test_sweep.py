@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from fedjax_nav import cli, config
+from fedjax_nav import cli, config, rundir
 from fedjax_nav.config import sweepfile as sf
 from fedjax_nav.experiments.sweeps import run_sweep
 from fedjax_nav.training import sweep as sw
@@ -80,6 +80,26 @@ def test_every_shipped_sweep_loads(path):
         for k, v in p.values.items():
             if k != "base":  # a section's field ("ddpg.tau") or a top-level one ("method")
                 assert config.get(p.cfg, k) == (tuple(v) if isinstance(v, list) else v), k
+
+
+def test_a_grid_over_the_method_writes_its_tables(tmp_path):
+    """A grid over the top-level `method` (generalization_scale's) gives the tidy table one `method`
+    column holding each point's method (its tables failed with a duplicate column)."""
+    from fedjax_nav.analysis.sweeps import point_metrics
+
+    sweep = sf.load_sweep(write_sweep(tmp_path, grid={"method": ["iddpg", "flddpg"], "fed.tau": [0.5, 1.0]}))
+    points = tmp_path / "points"
+    for p in sweep.points:
+        (points / p.id).mkdir(parents=True)
+        pd.DataFrame({"episode": [0, 1], "seed": 0, "robot": 0, "success": [0, 1]}).to_csv(
+            points / p.id / rundir.METRICS, index=False
+        )
+    t = point_metrics(sweep, points)
+    assert list(t.columns[:4]) == ["point", "label", "method", "fed.tau"] and not t.columns.duplicated().any()
+    by_point = t.groupby("point")[["method", "fed.tau"]].first()
+    assert {(by_point.loc[p.id, "method"], by_point.loc[p.id, "fed.tau"]) for p in sweep.points} == {
+        (m, tau) for m in ("iddpg", "flddpg") for tau in (0.5, 1.0)
+    }
 
 
 def test_shipped_sweeps_cover_the_thesis_experiments():

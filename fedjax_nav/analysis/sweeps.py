@@ -66,7 +66,8 @@ def point_metrics(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
         df.insert(0, "point", p.id)
         df.insert(1, "label", p.label)
         df.insert(2, "method", p.cfg.method)
-        for i, (k, v) in enumerate(p.values.items()):
+        swept = [(k, v) for k, v in p.values.items() if k != "method"]  # a swept method is the column above
+        for i, (k, v) in enumerate(swept):
             # a list value (env.worlds) is one cell, not a column of values
             cell = ", ".join(map(str, v)) if isinstance(v, (list, tuple)) else v
             df.insert(3 + i, "method_config" if k == "base" else k, cell)
