@@ -14,7 +14,8 @@ this module (it imports the config and nothing above it; the lock of a directory
       tensorboard/       live scalars (fedjax_nav.training.tblog)
       eval/<world>/      one folder per evaluation world          eval_dir / read_eval
         eval.json, eval_episodes.csv, eval_trajectories.npz, eval_bars.png, eval_trajectories.png
-      eval/<suite>/      a held-out suite: suite.json, suite_families.csv, suite_episodes.csv
+      eval/<suite>/      a held-out suite: suite.json, suite_families.csv, suite_episodes.csv,
+        worst_rooms.png (fedjax_nav.evaluation.worst_rooms)
       .lock              "PID HOST" of the one process writing it  fedjax_nav.runlock.RunLock
 
 A sweep folder (`fedjax-nav sweep --out`, the report folder of `reproduce`) holds run directories::
@@ -66,6 +67,7 @@ EVAL_TRAJECTORIES_FIGURE = "eval_trajectories.png"
 SUITE_JSON = "suite.json"
 SUITE_FAMILIES = "suite_families.csv"
 SUITE_EPISODES = "suite_episodes.csv"
+SUITE_WORST_ROOMS_FIGURE = "worst_rooms.png"  # the worst rooms' episodes (fedjax_nav.evaluation.worst_rooms)
 
 # a sweep folder
 POINTS = "points"

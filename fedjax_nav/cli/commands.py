@@ -228,7 +228,9 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
             from fedjax_nav.evaluation.suite import evaluate_suite_runs
 
-            evaluate_suite_runs(args.run_dirs, args.suite, **common)
+            evaluate_suite_runs(
+                args.run_dirs, args.suite, then=None if args.no_figures else _worst(args.suite), **common
+            )
             return 0
         robot = None
         if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
@@ -241,6 +243,13 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
     except EvalError as e:
         raise UserError(str(e)) from None
     return 0
+
+
+def _worst(suite: str):
+    """After each run's suite evaluation: its worst rooms' episodes drawn beside it (worst_rooms.png)."""
+    from fedjax_nav.evaluation.worst_rooms import worst_rooms
+
+    return lambda run_dir, folder: print(f"wrote {worst_rooms(run_dir, suite, folder=folder)}")
 
 
 def _render(args: argparse.Namespace) -> int:

@@ -209,7 +209,9 @@ def add_evaluate(sub) -> None:
         help="one run: folder for its evaluation files (default RUN/eval/<world>/); several runs: "
         "folder for the comparison (default PARENT/eval/<world>/, PARENT: the first run's parent)",
     )
-    p.add_argument("--no-figures", action="store_true", help="skip the PNGs")
+    p.add_argument(
+        "--no-figures", action="store_true", help="skip the PNGs (with --suite: the worst rooms' worst_rooms.png)"
+    )
     p.add_argument(
         "--robot",
         default=None,

@@ -6,6 +6,8 @@
   several runs: one group per run (their overall numbers), the comparison figure.
 - `trajectories(evaluation, path)`: one panel per goal, every agent's attempts over the world,
   a colour per agent, a gold star where an attempt reached the goal and a cross at a collision.
+- `room_trajectories(worst, path)`: one panel per room of a suite (the worst rooms of a held-out
+  suite evaluation, `worst_rooms.WorstRooms`), every agent's attempts to each goal, a colour per goal.
 
 No pyplot: `matplotlib.figure.Figure` saved with the Agg canvas (the user's backend is untouched).
 """
@@ -20,6 +22,8 @@ from fedjax_nav import rundir
 
 _ALL = "#1f77b4"
 _BEST = "#ff7f0e"
+# a colour per goal, none of the room's own (blue starts, green goals, brown boxes, red collisions)
+_GOAL_COLORS = ("tab:orange", "tab:purple", "tab:pink", "tab:cyan", "tab:olive", "tab:gray", "gold", "black")
 
 
 def _figure(w: float, h: float):
@@ -190,5 +194,51 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
         f"(colour = agent; * goal, x collision, o time-out); noise range {n['range_noise']:g} m, "
         f"action {n['action_noise']:g}",
         fontsize=9,
+    )
+    return _save(fig, path, dpi=90)
+
+
+def room_trajectories(w, path: str | Path, max_agents: int | None = None) -> Path:
+    """One panel per room of `w` (a `worst_rooms.WorstRooms`): the room and every agent's attempts
+    to each of its goals, a colour per goal (* goal reached, x collision, o time-out), titled with
+    the room's family, room seed and its success, collision and time-out rates in the evaluation.
+    max_agents draws only the first agents (default all)."""
+    from matplotlib.lines import Line2D
+
+    n, A, G, K = w.success.shape
+    A_draw = A if max_agents is None else min(A, max_agents)
+    color = lambda g: _GOAL_COLORS[g % len(_GOAL_COLORS)]  # noqa: E731
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig = _figure(3.6 * cols, 3.6 * rows + 0.8)
+    axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
+    for i, room in enumerate(w.rooms.itertuples()):
+        ax = axes[i]
+        _draw_world(ax, w.room(i), None)
+        paths, colors, outcomes = [], [], []
+        for a in range(A_draw):
+            for g in range(int(w.num_goals[i])):
+                for k in range(K):
+                    paths.append(w.poses[i, a, g, k, : int(w.steps[i, a, g, k]) + 1, :2])
+                    colors.append(color(g))
+                    ok, hit = w.success[i, a, g, k], w.collision[i, a, g, k]
+                    outcomes.append("success" if ok else "collision" if hit else "timeout")
+        _draw_paths(ax, paths, colors, outcomes)
+        seed = f", room seed {room.room_seed}" if room.room_seed >= 0 else ""
+        ax.set_title(
+            f"{room.family}{seed} (room {room.room})\nsuccess {room.success:.2f}, collision "
+            f"{room.collision:.2f}, time-out {room.timeout:.2f}",
+            fontsize=8,
+        )
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    goals = [Line2D([], [], color=color(g), label=f"G{g}") for g in range(int(np.max(w.num_goals)))]
+    fig.legend(handles=goals, loc="outside lower center", ncol=len(goals), fontsize=8, title="colour = goal")
+    s = w.summary
+    fig.suptitle(
+        f"{s['method']} on suite '{s['suite']}': the {n} rooms of lowest success of {s['rooms']} (rates of the "
+        f"evaluation: {s['attempts_per_agent']} attempt(s), T = {s['max_steps']})\n{A_draw} of {A} agent(s) x "
+        f"{K} attempt(s) per goal replayed; * goal reached, x collision, o time-out",
+        fontsize=8,
     )
     return _save(fig, path, dpi=90)

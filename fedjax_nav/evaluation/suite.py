@@ -18,15 +18,20 @@ the collision and time-out rates, and the median path-length ratio of the succes
 while the rollout runs). Written to RUN/eval/<suite>/ (a file suite: RUN/eval/<its folder's name>/)
 through fedjax_nav.rundir: `suite.json` (everything), `suite_families.csv` (one row per family, and
 "all"), `suite_episodes.csv` (one row per room x agent x goal x attempt).
+
+The rooms and the folder's name: `evaluation.suite_files`. The protocol on them, room by room
+(`SuiteProtocol`: the keys of room r are the same whatever rooms run beside it), is also what
+`evaluation.worst_rooms` replays to draw the worst rooms of a kept evaluation.
 """
 
 from __future__ import annotations
 
-import glob
+import functools
 import json
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -36,23 +41,22 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
-from fedjax_nav import worlds as _worlds
 from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
 from fedjax_nav.evaluation import paths
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
-from fedjax_nav.evaluation.runs import greedy_policy, load_run
+from fedjax_nav.evaluation.runs import RunAgents, greedy_policy, load_run
+from fedjax_nav.evaluation.suite_files import file_suite as file_suite  # re-exported: the suite's own names
+from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
 from fedjax_nav.worlds import WorldError
-from fedjax_nav.worlds.input_files import show
-from fedjax_nav.worlds.suites import SUITE_GROUPS, SUITES, suite_names, suite_rooms
+from fedjax_nav.worlds.suites import suite_names
 
 SUITE_JSON = "suite.json"
 FAMILIES_CSV = "suite_families.csv"
 EPISODES_CSV = "suite_episodes.csv"
 RESAMPLES = 10_000
 WORST = 0.10  # the tail: the worst 10 % of rooms
-WORLD_SUFFIXES = (".json", ".yaml", ".yml")  # the world files of a folder (worlds.load's formats)
 TAIL = (
     "worst10: mean success of the worst ceil(10%) of rooms (rooms ranked by their success over agents, "
     "goals, attempts), worst10_ci_* its 95% percentile bootstrap interval over rooms; collision, timeout: "
@@ -92,67 +96,6 @@ def bootstrap_ci(x, confidence: float = 0.95, seed: int = 0, statistic=np.mean) 
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
-def is_file_suite(suite: str) -> bool:
-    """Whether `--suite` names world files (a folder, a glob, a path) rather than a named suite: a
-    suite or group name wins; otherwise a glob character, a path separator or an existing path."""
-    if suite in SUITES or suite in SUITE_GROUPS:
-        return False
-    try:
-        exists = Path(suite).exists()
-    except (OSError, ValueError):  # a NUL byte, an over-long name: not a path, so a name (refused as one)
-        exists = False
-    return any(c in suite for c in "*?[/\\") or exists
-
-
-def suite_folder(suite: str) -> str:
-    """The folder name of an evaluation on `suite` under RUN/eval/: a named suite's name; a file
-    suite's folder (a folder's own name; a glob's or a file's: the folder holding it)."""
-    if not is_file_suite(suite):
-        return suite
-    p = Path(suite)
-    if not p.is_dir():
-        head = []
-        for part in p.parts[:-1]:
-            if any(c in part for c in "*?["):
-                break
-            head.append(part)
-        p = Path(*head) if head else Path(".")
-    return p.resolve().name or "suite"
-
-
-def world_files(suite: str) -> list[Path]:
-    """The world files of a file suite, sorted: a folder's regular files named *.json, *.yaml, *.yml
-    (not recursive), or those among a glob's matches. None: an EvalError naming the folder or glob."""
-    p = Path(suite)
-    try:
-        folder = p.is_dir()
-        found = p.iterdir() if folder else (Path(f) for f in glob.glob(suite))
-        files = sorted(f for f in found if f.suffix.lower() in WORLD_SUFFIXES and f.is_file())
-    except (OSError, ValueError) as e:  # a folder that cannot be listed, a NUL byte, an over-long name
-        why = getattr(e, "strerror", None) or type(e).__name__
-        msg = f"--suite {show(suite, 240)}: cannot be read as a folder or glob of world files ({why})"
-        raise EvalError(msg) from None
-    if not files:
-        kinds = ", ".join(f"*{x}" for x in WORLD_SUFFIXES)
-        where = "in this folder" if folder else "matches this folder, glob or file"
-        raise EvalError(f"--suite {show(suite, 240)}: no world file ({kinds}) {where}")
-    return files
-
-
-def file_suite(suite: str) -> tuple:
-    """The rooms of a folder or glob of world files as one stacked World (`worlds.stack`: padded to
-    one shape), each room's family (its file name stem; the file name where two stems are equal),
-    room seeds (-1: none) and the files. A file that does not load: an EvalError naming it."""
-    files = world_files(suite)
-    try:
-        loaded = [_worlds.load(f) for f in files]
-    except WorldError as e:
-        raise EvalError(str(e)) from None
-    stems = [f.stem for f in files]
-    fams = np.asarray([f.stem if stems.count(f.stem) == 1 else f.name for f in files])
-    return _worlds.stack(loaded), fams, np.full(len(files), -1, np.int64), [str(f) for f in files]
-
-
 def _check_suite(suite: str) -> list[str]:
     """The suites of a name, or the files of a file suite; an EvalError (one line) for neither."""
     if is_file_suite(suite):
@@ -166,6 +109,67 @@ def _check_suite(suite: str) -> list[str]:
 def _timed(fn, *args):
     t = time.time()
     return fn(*args), time.time() - t
+
+
+@dataclass
+class SuiteProtocol:
+    """The protocol of a run on the stacked rooms of a suite, room by room: what `evaluate_suite`
+    drives and `worst_rooms` replays. Room r's episodes draw their keys from `keys()[r]` whatever
+    rooms run beside it, so a replay of some rooms repeats their episodes."""
+
+    run: RunAgents
+    values: dict  # envs.eval_values: the env's traced values, the protocol's noise included
+    settings: dict  # NavEnv's static settings; episode_length is the time-out T
+    params: object  # EnvParams [R, ...]
+    seed: int  # the evaluation seed
+    T: int
+    K: int  # attempts per agent
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        """(rooms R, agents A, goal rows G, attempts K)."""
+        R, G = self.params.world.goals.shape[:2]
+        return int(R), self.run.num_agents, int(G), self.K
+
+    def keys(self) -> jax.Array:
+        """The episodes' keys [R, A, G * K] (an agent's episode e: attempt e // G, goal e % G);
+        made only when the rollout runs, after `check`."""
+        R, A, G, K = self.shape
+        return jax.random.split(jax.random.key(self.seed), R * A * G * K).reshape(R, A, G * K)
+
+    def check(self, rooms: int, k: int, asked: int, budget: int | None) -> None:
+        """`limits.check_eval_memory` of `rooms` x agents x goals x `k` attempts (`asked`: --attempts)."""
+        room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), self.params)  # one room's shapes
+        state = episode_state(self.settings, room, greedy_policy(self.run.cfg))
+        shape = (rooms, self.run.num_agents, self.shape[2], k)
+        check_eval_memory(self.settings, state, shape, min(CHUNK, self.T), asked, budget, str(self.run.run_dir))
+
+    def rollout(self, rooms=None, k: int | None = None) -> dict:
+        """The episodes of `rooms` (indices of the suite's rooms; None: all), their first `k`
+        attempts (None: all K), in one jitted, vmapped program: success, collision, timeout, steps,
+        path [rooms, A, G, k] and poses [rooms, A, G, k, T + 1, 3], numpy."""
+        G = self.shape[2]
+        pick = (lambda x: x) if rooms is None else (lambda x: x[np.asarray(rooms)])
+        params, keys = jax.tree.map(pick, self.params), pick(self.keys())[:, :, : G * (k or self.K)]
+        program = _rooms_program(eval_program(self.settings, greedy_policy(self.run.cfg), min(CHUNK, self.T)))
+        return jax.device_get(program(self.run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))
+
+
+@functools.lru_cache(maxsize=16)
+def _rooms_program(program):
+    """The evaluation program vmapped over rooms, jitted once per program (a replay reuses it)."""
+    return jax.jit(jax.vmap(program, (None, 0, None, 0)))
+
+
+def suite_protocol(run: RunAgents, world, attempts: int, range_noise, action_noise, seed, max_steps) -> SuiteProtocol:
+    """The protocol of `run` on the stacked `world` [R, ...]: the run's env values with the noise
+    (`envs.eval_values`: the run's robot model, as in training), T (`max_steps` or the run's), K
+    (`attempts` x robots / networks) and evaluation seed `seed`. Nothing of the episodes' size is
+    allocated (`check` first)."""
+    K, T = int(attempts) * run.num_robots // run.n_nets, int(max_steps or run.cfg.env.episode_length)
+    values = envs.eval_values(run.cfg, range_noise, action_noise)
+    settings = envs.env_settings(run.cfg, "eval", noise=True, episode_length=T)
+    return SuiteProtocol(run, values, settings, make_params(world, **values), int(seed), T, K)
 
 
 def evaluate_suite(
@@ -188,23 +192,12 @@ def evaluate_suite(
     members = _check_suite(suite)
     run = load_run(run_dir)
     cfg, e = run.cfg, run.cfg.env
-    if is_file_suite(suite):
-        world, families, room_seeds, members = file_suite(suite)
-    else:
-        world, families, room_seeds = suite_rooms(suite)
+    world, families, room_seeds = suite_world(suite)
     R, G = world.goals.shape[:2]
-    A, K = run.num_agents, int(attempts) * run.num_robots // run.n_nets
-    T = int(max_steps or e.episode_length)
-    values = envs.eval_values(cfg, range_noise, action_noise)  # the run's robot model, as in training
+    protocol = suite_protocol(run, world, attempts, range_noise, action_noise, seed, max_steps)
+    A, K, T, values, settings = run.num_agents, protocol.K, protocol.T, protocol.values, protocol.settings
     range_noise = values["range_noise"]
-    params = make_params(world, **values)
-    settings = envs.env_settings(cfg, "eval", noise=True, episode_length=T)
-    room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), params)  # one room's shapes
-    policy = greedy_policy(cfg)
-    state = episode_state(settings, room, policy)
-    check_eval_memory(settings, state, (R, A, G, K), min(CHUNK, T), int(attempts), memory_budget, str(run.run_dir))
-    program = eval_program(settings, policy, min(CHUNK, T))
-    keys = jax.random.split(jax.random.key(seed), R * A * G * K).reshape(R, A, G * K)
+    protocol.check(R, K, int(attempts), memory_budget)
     # the collision distance the env tests (a modelled robot's footprint replaces it when set)
     clearance = float(
         values["footprint"] if settings.get("robot") and values["footprint"] > 0 else values["collision_distance"]
@@ -214,8 +207,7 @@ def evaluate_suite(
             _timed, paths.shortest_paths, jax.device_get(world), clearance, float(values["goal_radius"])
         )
         t0 = time.time()
-        rooms = jax.jit(jax.vmap(program, in_axes=(None, 0, None, 0)))
-        out = jax.device_get(rooms(run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))  # [R, A, G, K]
+        out = protocol.rollout()  # [R, A, G, K]
         wall = time.time() - t0
         (sp, sp_s), waited = shortest.result(), time.time() - t0 - wall
     valid = np.arange(G)[None, :] < np.asarray(world.num_goals)[:, None]  # [R, G]
@@ -360,9 +352,11 @@ def evaluate_suite_runs(
     out: str | Path | None = None,
     echo: Callable[[str], None] = print,
     memory_budget: int | None = None,
+    then: Callable[[str | Path, Path], None] | None = None,
 ) -> dict:
     """What `fedjax-nav evaluate RUN... --suite NAME|DIR|GLOB` does: each run into
-    RUN/eval/<suite_folder(suite)>/ (or `out` for one run), a table per run. Returns {run_dir: summary}."""
+    RUN/eval/<suite_folder(suite)>/ (or `out` for one run), a table per run; `then(run_dir, folder)`
+    after each run's files are written (the CLI draws its worst rooms there). Returns {run_dir: summary}."""
     results = {}
     _check_suite(suite)  # a bad name or an empty folder: one line before any run is loaded
     for run_dir in run_dirs:
@@ -392,5 +386,7 @@ def evaluate_suite_runs(
             ].to_string(index=False, float_format="%.3f")
         )
         echo("wrote " + ", ".join(str(p) for p in paths))
+        if then is not None:
+            then(run_dir, dest)
         results[str(run_dir)] = s
     return results

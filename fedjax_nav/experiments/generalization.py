@@ -9,10 +9,13 @@ Report folder (the sweep's --out), named after the sweep (`generalization` here)
 <name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget,
 <name>_probe.csv / .png (the held-out probe during training); so the
 report of another sweep over the same points folder (generalization_levers) writes beside it.
+Each point's suite evaluation gets its worst rooms drawn (RUN/eval/<suite>/worst_rooms.png,
+`evaluation.worst_rooms`), copied with the figures as <name>_worst_rooms_<point label>.png.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Callable
 
@@ -30,14 +33,29 @@ def tables(name: str) -> tuple[str, str, str]:
 
 def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
     """The arena (protocol of docs/evaluation.md, figures drawn) and the suite, unless already
-    evaluated with the same attempts."""
-    from fedjax_nav.evaluation import evaluated
+    evaluated with the same attempts; the suite's worst rooms drawn (`evaluation.worst_rooms`)
+    after a new evaluation, or where their figure is missing (one line instead where it cannot be)."""
+    from fedjax_nav.evaluation import EvalError, evaluated
     from fedjax_nav.evaluation.suite import evaluated_suite
+    from fedjax_nav.evaluation.worst_rooms import worst_rooms
 
     if evaluated(folder, gz.ARENA, arena_attempts, figures=True)[1]:
         echo(f"evaluated {folder.name} on the arena")
-    if evaluated_suite(folder, suite, suite_attempts)[1]:
+    fresh = evaluated_suite(folder, suite, suite_attempts)[1]
+    if fresh:
         echo(f"evaluated {folder.name} on suite {suite}")
+    if fresh or not worst_figure(folder, suite).exists():
+        try:
+            echo(f"drew {folder.name}'s worst rooms of suite {suite}: {worst_rooms(folder, suite)}")
+        except EvalError as e:  # an evaluation kept from before the figure (other columns): the tables still stand
+            echo(f"no worst rooms drawn for {folder.name}: {e}")
+
+
+def worst_figure(folder: Path, suite: str) -> Path:
+    """The worst rooms' figure of a point's evaluation on `suite` (RUN/eval/<suite>/worst_rooms.png)."""
+    from fedjax_nav.evaluation.suite_files import suite_folder
+
+    return rundir.eval_dir(folder, suite_folder(suite)) / rundir.SUITE_WORST_ROOMS_FIGURE
 
 
 def families_of(t) -> list[str]:
@@ -57,7 +75,8 @@ def report(
     echo: Callable[[str], None] = print,
 ) -> dict:
     """Evaluate (unless `evaluate` is False), then write the report into `out`; copy the small
-    tables and the figures (with the FLDDPG points' arena trajectories) where asked."""
+    tables and the figures (with the FLDDPG points' arena trajectories and every point's worst
+    rooms of the suite) where asked."""
     out = Path(out)
     points = rundir.points_dir(out)
     if evaluate:
@@ -91,6 +110,10 @@ def report(
             if src.exists():
                 key = f"{name}_arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}"
                 figures[key + (f"_{r.point}" if key + ".png" in figures else "") + ".png"] = src
+        for _, r in t.iterrows():  # the worst rooms of every point's suite evaluation
+            src = worst_figure(points / r.point, suite)
+            if src.exists():
+                figures[f"{name}_worst_rooms_{re.sub(r'[^A-Za-z0-9.-]+', '_', r.label).strip('_')}.png"] = src
         copied += rundir.copy_into(copy_figures, figures)
     echo(f"{name} report: {len(t)} point(s) in {out}/{name}.md; {len(figs)} figure(s)")
     return {"points": len(t), "figures": figs, "copied": copied}
