@@ -11,7 +11,7 @@ import pytest
 
 from fedjax_nav import worlds
 from fedjax_nav.analysis import generalization as gz
-from fedjax_nav.evaluation import paths, suite
+from fedjax_nav.evaluation import paths, suite, suite_stats
 
 C = 0.25  # the collision distance
 RES = paths.RES
@@ -76,27 +76,29 @@ def test_shortest_paths_cover_every_room_and_goal_of_a_stack():
 
 
 def test_the_worst_tenth_of_rooms():
-    assert suite.worst_mean([0.5, 0.2, 0.9]) == 0.2  # 3 rooms: the worst one
+    assert suite_stats.worst_mean([0.5, 0.2, 0.9]) == 0.2  # 3 rooms: the worst one
     x = np.linspace(0, 1, 20)[::-1]
-    assert suite.worst_mean(x) == pytest.approx(np.mean(np.sort(x)[:2]))  # 20 rooms: the worst 2
-    assert suite.worst_mean(np.arange(50.0)) == pytest.approx(2.0)  # 50 rooms: the worst 5
-    assert suite.worst_mean(np.arange(51.0)) == pytest.approx(2.5)  # 51: ceil(5.1) = 6
+    assert suite_stats.worst_mean(x) == pytest.approx(np.mean(np.sort(x)[:2]))  # 20 rooms: the worst 2
+    assert suite_stats.worst_mean(np.arange(50.0)) == pytest.approx(2.0)  # 50 rooms: the worst 5
+    assert suite_stats.worst_mean(np.arange(51.0)) == pytest.approx(2.5)  # 51: ceil(5.1) = 6
     rng = np.random.default_rng(0)
     for n in range(1, 30):  # the analysis layer's copy of the statistic agrees
         v = rng.random(n)
-        assert gz.worst_rooms(v) == pytest.approx(suite.worst_mean(v))
+        assert gz.worst_rooms(v) == pytest.approx(suite_stats.worst_mean(v))
     batch = rng.random((7, 30))  # vectorised along an axis, as scipy.stats.bootstrap calls it
-    np.testing.assert_allclose(suite.worst_mean(batch, axis=-1), [suite.worst_mean(r) for r in batch])
+    np.testing.assert_allclose(suite_stats.worst_mean(batch, axis=-1), [suite_stats.worst_mean(r) for r in batch])
 
 
-def frame(per_room: list[list[int]], ratio=None) -> pd.DataFrame:
-    """Episodes of rooms 0.. with the given successes (one list per room), seeds alternating."""
+def frame(per_room: list[list[int]], ratio=None, shortest=None) -> pd.DataFrame:
+    """Episodes of rooms 0.. with the given successes (one list per room), seeds alternating; every
+    goal 2 m away in a straight line, its shortest safe path 2 m unless `shortest` {(room, j): m}."""
     rows = []
     for i, successes in enumerate(per_room):
         for j, s in enumerate(successes):
             rows.append(
                 {"room": i, "seed": j % 2, "byzantine": 0, "success": s, "collision": int(not s and j % 2 == 0)}
                 | {"timeout": int(not s and j % 2 == 1), "path_ratio": (ratio or {}).get((i, j), np.nan)}
+                | {"straight_line": 2.0, "shortest_path": (shortest or {}).get((i, j), 2.0)}
             )
     return pd.DataFrame(rows)
 
@@ -105,7 +107,7 @@ def test_the_family_row_has_the_tail():
     # 20 rooms x 4 episodes; rooms 0 and 1 succeed 0 / 4 and 1 / 4, the rest 3 / 4 or 4 / 4
     per_room = [[0, 0, 0, 0], [1, 0, 0, 0]] + [[1, 1, 1, i % 2] for i in range(18)]
     ep = frame(per_room, ratio={(2, 0): 1.1, (3, 0): 1.3, (4, 0): 2.0})
-    row = suite._family_row("walls", ep)
+    row = suite_stats.family_row("walls", ep)
     assert row["worst10_rooms"] == 2 and row["worst10"] == pytest.approx(0.125)
     assert row["worst10_ci_low"] <= row["worst10"] <= row["worst10_ci_high"]
     assert row["worst10_ci_low"] == 0.0 and row["worst10_ci_high"] < row["success"]  # resampled rooms
@@ -113,7 +115,21 @@ def test_the_family_row_has_the_tail():
     assert row["path_ratio_median"] == pytest.approx(1.3) and row["path_ratio_episodes"] == 3
     # the mean's interval is what it was (the default statistic)
     per = ep.groupby("room")["success"].mean()
-    assert (row["ci_rooms_low"], row["ci_rooms_high"]) == suite.bootstrap_ci(per, statistic=np.mean)
+    assert (row["ci_rooms_low"], row["ci_rooms_high"]) == suite_stats.bootstrap_ci(per, statistic=np.mean)
+
+
+def test_the_success_splits_by_detour():
+    """An episode needs a detour when its goal's shortest safe path is longer than DETOUR x the
+    straight line: 2.2 m against 2 m does (1.1), 2.1 m does not (1.05, the bound itself)."""
+    assert suite_stats.DETOUR == 1.05
+    per_room = [[1, 1, 0, 0], [1, 0, 0, 0]]
+    ep = frame(per_room, shortest={(0, 2): 2.2, (0, 3): 2.2, (1, 1): 2.2, (1, 0): 2.1})
+    row = suite_stats.family_row("walls", ep)
+    # detours: (0, 2), (0, 3), (1, 1), all failed; direct: (0, 0), (0, 1), (1, 0) succeed, (1, 2), (1, 3) fail
+    assert row["detour_share"] == pytest.approx(3 / 8)
+    assert row["success_detour"] == 0.0 and row["success_direct"] == pytest.approx(3 / 5)
+    no_detour = suite_stats.family_row("walls", frame(per_room))
+    assert no_detour["detour_share"] == 0.0 and np.isnan(no_detour["success_detour"])
 
 
 def _tail_point(sweep, tmp_path):
@@ -126,7 +142,8 @@ def _tail_point(sweep, tmp_path):
     folder = tmp_path / "points" / p.id / "eval" / "heldout"
     fam = pd.read_csv(folder / suite.FAMILIES_CSV)
     tail = {"worst10": 0.25, "worst10_ci_low": 0.1, "worst10_ci_high": 0.4, "collision": 0.3, "timeout": 0.05}
-    fam.assign(**tail, path_ratio_median=1.2).to_csv(folder / suite.FAMILIES_CSV, index=False)
+    detour = {"detour_share": 0.5, "success_direct": 0.9, "success_detour": 0.2}
+    fam.assign(**tail, **detour, path_ratio_median=1.2).to_csv(folder / suite.FAMILIES_CSV, index=False)
     rows = [  # seed s, room i of each family: success i < 8 + s, collision otherwise
         {"family": f, "seed": s, "room": i, "success": int(i < 8 + s), "collision": int(i >= 8 + s), "timeout": 0}
         for f in fams
@@ -156,6 +173,7 @@ def test_the_tail_reaches_the_generalization_tables(tmp_path):
     r = gz.readable(t, ["walls"]).iloc[0]
     assert r["walls worst 10%"] == "0.250 [0.10, 0.40]" and r["collision (all)"] == "0.300"
     assert r["time-out (all)"] == "0.050" and r["path ratio (all)"] == "1.200"
+    assert t.walls_detour_share[0] == 0.5 and r["direct / detour (all)"] == "0.900 / 0.200"
 
 
 def test_tables_without_the_tail_keep_their_columns(tmp_path):

@@ -15,7 +15,8 @@ The tail of the held-out suite (docs/generalization.md, "Tail metrics") rides al
 suite's files hold it (evaluations written before it existed simply lack those columns):
 `<family>_worst10` (mean success of the worst 10 % of rooms) with its interval over rooms
 (`<family>_worst10_ci_low/high`), `<family>_collision`, `<family>_timeout` and
-`<family>_path_ratio_median`.
+`<family>_path_ratio_median`; and so does the split by detour (`<family>_detour_share`, the share of
+episodes whose goal needs a detour, `<family>_success_direct`, `<family>_success_detour`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ ARENA = "eval"  # the thesis's evaluation world
 # suite_families.csv columns copied per family into `table` (the first five as they always were)
 FAMILY_COLUMNS = ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "ci_rooms_high")
 TAIL_COLUMNS = ("worst10", "worst10_ci_low", "worst10_ci_high", "collision", "timeout", "path_ratio_median")
+# success by the goal's detour (evaluation.suite_stats.detour_split), where the suite's files hold it
+DETOUR_COLUMNS = ("detour_share", "success_direct", "success_detour")
 GOAL_ARENA, GOAL_FAMILY = 0.90, 0.85  # the issue's goal: arena and every held-out family
 
 
@@ -82,7 +85,7 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             row.update(arena=a["success_rate"], arena_seed_std=a["success_seed_std"])
         fam = _suite_families(rundir.eval_dir(d, suite))
         if fam is not None:
-            tail = [c for c in TAIL_COLUMNS if c in fam.columns]
+            tail = [c for c in (*TAIL_COLUMNS, *DETOUR_COLUMNS) if c in fam.columns]
             for _, f in fam.iterrows():
                 for col in (*FAMILY_COLUMNS, *tail):
                     row[f"{f.family}_{col}" if col != "success" else f.family] = f[col]
@@ -118,7 +121,7 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
 
 def worst_rooms(per_room) -> float:
     """The mean of the lowest ceil(10 %) of the rooms' success (at least one room): the statistic
-    of `evaluation.suite.worst_mean`, which analysis may not import (one layer); a test holds the
+    of `evaluation.suite_stats.worst_mean`, which analysis may not import (one layer); a test holds the
     two equal."""
     x = np.sort(np.asarray(per_room, np.float64))
     return float(x[: max(1, int(np.ceil(0.1 * len(x) - 1e-9)))].mean()) if len(x) else float("nan")
@@ -178,6 +181,8 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
             row["collision (all)"] = num(r.get("all_collision", np.nan))
             row["time-out (all)"] = num(r.get("all_timeout", np.nan))
             row["path ratio (all)"] = num(r.get("all_path_ratio_median", np.nan))
+        if "all_success_detour" in r:  # goals on a clear straight line / behind a detour, all rooms
+            row["direct / detour (all)"] = f"{num(r.all_success_direct)} / {num(r.all_success_detour)}"
         rows.append(row)
     out = pd.DataFrame(rows)
     if len(t) and not t.duplicated(["method", "learner", "rooms", "episodes"]).any():

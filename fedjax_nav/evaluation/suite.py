@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -49,51 +48,13 @@ from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_N
 from fedjax_nav.evaluation.runs import RunAgents, greedy_policy, load_run
 from fedjax_nav.evaluation.suite_files import file_suite as file_suite  # re-exported: the suite's own names
 from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
+from fedjax_nav.evaluation.suite_stats import TAIL, family_row
 from fedjax_nav.worlds import WorldError
 from fedjax_nav.worlds.suites import suite_names
 
 SUITE_JSON = "suite.json"
 FAMILIES_CSV = "suite_families.csv"
 EPISODES_CSV = "suite_episodes.csv"
-RESAMPLES = 10_000
-WORST = 0.10  # the tail: the worst 10 % of rooms
-TAIL = (
-    "worst10: mean success of the worst ceil(10%) of rooms (rooms ranked by their success over agents, "
-    "goals, attempts), worst10_ci_* its 95% percentile bootstrap interval over rooms; collision, timeout: "
-    "shares of episodes; path_ratio_median: median over successful episodes of path_length / shortest_path "
-    "(the shortest path from the start into the goal disk keeping the collision distance: an 8-connected "
-    "grid search, then the string pulled tight with exact clearance checks; fedjax_nav.evaluation.paths)"
-)
-
-
-def worst_mean(x, axis: int = -1):
-    """The mean of the lowest ceil(WORST * n) of the n values along `axis` (at least one): the
-    worst 10 % of rooms' success. Vectorised over the other axes (scipy.stats.bootstrap)."""
-    x = np.sort(np.asarray(x, np.float64), axis=axis)
-    k = max(1, math.ceil(WORST * x.shape[axis] - 1e-9))
-    return np.take(x, np.arange(k), axis=axis).mean(axis=axis)
-
-
-def bootstrap_ci(x, confidence: float = 0.95, seed: int = 0, statistic=np.mean) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of `statistic` (default the mean; vectorised, with an
-    `axis` argument) of `x` (scipy.stats.bootstrap); (nan, nan) for fewer than two values, (m, m)
-    when every value is m."""
-    from scipy import stats
-
-    x = np.asarray(x, np.float64)
-    if len(x) < 2:
-        return float("nan"), float("nan")
-    if np.all(x == x[0]):
-        return float(x[0]), float(x[0])
-    res = stats.bootstrap(
-        (x,),
-        statistic,
-        confidence_level=confidence,
-        n_resamples=RESAMPLES,
-        method="percentile",
-        random_state=np.random.default_rng(seed),
-    )
-    return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def _check_suite(suite: str) -> list[str]:
@@ -216,6 +177,8 @@ def evaluate_suite(
     success = out["success"].ravel().astype(int)
     path = out["path"].ravel().astype(np.float64)
     shortest_m = sp[r.ravel(), g.ravel()]
+    starts, goals = np.asarray(world.starts)[:, 0, :2], np.asarray(world.goals)
+    straight = np.linalg.norm(goals - starts[:, None], axis=-1)[r.ravel(), g.ravel()] - float(values["goal_radius"])
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where((success == 1) & (shortest_m > 0), path / shortest_m, np.nan)
     ep = pd.DataFrame(
@@ -234,12 +197,13 @@ def evaluate_suite(
             "steps": out["steps"].ravel(),
             "path_length": out["path"].ravel(),
             "shortest_path": shortest_m,
+            "straight_line": straight,
             "path_ratio": ratio,
         }
     )[keep].reset_index(drop=True)
     fams = pd.DataFrame(
         [
-            _family_row(name, part)
+            family_row(name, part)
             for name, part in [*((f, ep[ep.family == f]) for f in dict.fromkeys(families)), ("all", ep)]
         ]
     )
@@ -275,37 +239,6 @@ def evaluate_suite(
         "wall_s": wall,
     }
     return {"summary": summary, "families": fams, "episodes": ep}
-
-
-def _family_row(name: str, ep: pd.DataFrame) -> dict:
-    per_room = ep.groupby("room")["success"].mean().to_numpy()
-    per_seed = ep.groupby("seed")["success"].mean().to_numpy()
-    lo_r, hi_r = bootstrap_ci(per_room)
-    lo_s, hi_s = bootstrap_ci(per_seed)
-    lo_w, hi_w = bootstrap_ci(per_room, statistic=worst_mean)
-    ratio = ep["path_ratio"].to_numpy(np.float64)
-    ratio = ratio[np.isfinite(ratio)]
-    return {
-        "family": name,
-        "rooms": int(len(per_room)),
-        "episodes": int(len(ep)),
-        "success": float(ep["success"].mean()),
-        "ci_rooms_low": lo_r,
-        "ci_rooms_high": hi_r,
-        "seeds": int(len(per_seed)),
-        "ci_seeds_low": lo_s,
-        "ci_seeds_high": hi_s,
-        "collision": float(ep["collision"].mean()),
-        "timeout": float(ep["timeout"].mean()),
-        # the honest agents' success when the run had Byzantine robots (fed.byzantine), else NaN
-        "success_honest": float(ep.loc[ep.byzantine == 0, "success"].mean()) if ep.byzantine.any() else float("nan"),
-        "worst10": float(worst_mean(per_room)) if len(per_room) else float("nan"),
-        "worst10_rooms": max(1, math.ceil(WORST * len(per_room) - 1e-9)) if len(per_room) else 0,
-        "worst10_ci_low": lo_w,
-        "worst10_ci_high": hi_w,
-        "path_ratio_median": float(np.median(ratio)) if len(ratio) else float("nan"),
-        "path_ratio_episodes": int(len(ratio)),
-    }
 
 
 def write_suite(result: dict, out: str | Path) -> list[Path]:
