@@ -12,6 +12,11 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # A persistent compilation cache shared by the test process and the subprocesses it starts
 # (the CLI tests compile the same trainer again in each subprocess).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "fedjax_nav_jax"))
+# Every compilation into it, the small ones too (jax keeps only those over 1 s by default): the suite
+# compiles hundreds of programs of 0.1-1 s (env steps, federated rounds, evaluation loops), and with
+# them cached a second run of a group of env and evaluation test files took 72 s instead of 144 s
+# (docs/benchmarks.md, "The test suite").
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -56,9 +56,9 @@ TIMEOUT = 300  # s, per subprocess (a loaded 2-core machine)
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    # every compilation into the shared cache, the small ones too (jax skips those under 1 s by
-    # default, and each subprocess compiles dozens of them)
-    e = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1", JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    # the subprocesses compile into conftest's shared cache, the small programs too (its settings
+    # are in os.environ)
+    e = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONUNBUFFERED="1")
     e.setdefault("JAX_COMPILATION_CACHE_DIR", str(tmp_path_factory.mktemp("jax_cache")))
     return e
 

@@ -254,13 +254,9 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sharding")
-    # every compilation into the persistent cache (conftest's), the small ones of the federated step too
-    env = dict(
-        os.environ,
-        JAX_PLATFORMS="cpu",
-        XLA_FLAGS=f"--xla_force_host_platform_device_count={DEVICES}",
-        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-    )
+    # every compilation into conftest's persistent cache (its settings are in os.environ), the small
+    # ones of the federated step too
+    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=f"--xla_force_host_platform_device_count={DEVICES}")
     code = (
         "import json, sys; sys.path.insert(0, sys.argv[1]); import test_sharding as t; "
         "print('REPORT ' + json.dumps(t.worker(sys.argv[2])))"
