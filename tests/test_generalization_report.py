@@ -161,3 +161,15 @@ def test_a_point_evaluated_with_the_same_attempts_is_not_evaluated_again(tmp_pat
     assert kept_suite(tmp_path, "heldout", 1) is not None and kept_suite(tmp_path, "heldout", 2) is None
     (d / "suite.json").write_text(json.dumps({"attempts_per_agent": 1}))  # written before attempts_requested was kept
     assert kept_suite(tmp_path, "heldout", 1) is not None
+
+
+def test_probe_legend_names_what_tells_points_apart():
+    from fedjax_nav.analysis.generalization import distinct_parts
+
+    a = "method=snddpg, env.room_families=('cylinders', 'boxes'), ppo.gamma=0.99, env.reward_collision=-10.0"
+    b = "method=snddpg, env.room_families=('cylinders', 'boxes'), ppo.gamma=0.999, env.reward_collision=-10.0"
+    c = "method=snddpg, env.room_families=('mixture',), ppo.gamma=0.999, env.reward_collision=-10.0"
+    assert distinct_parts([a, b]) == {a: "ppo.gamma=0.99", b: "ppo.gamma=0.999"}
+    # a tuple's commas stay inside its part
+    assert distinct_parts([b, c]) == {b: "env.room_families=('cylinders', 'boxes')", c: "env.room_families=('mixture',)"}
+    assert distinct_parts([a]) == {a: a} and distinct_parts([a, a]) == {a: a}

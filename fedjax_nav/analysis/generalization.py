@@ -269,6 +269,17 @@ def probe_curves(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
 
 
+def distinct_parts(labels: list[str]) -> dict[str, str]:
+    """Each point label ("method=snddpg, env.room_families=('mixture',), ppo.gamma=0.99") less the
+    `key=value` parts every label shares: what tells the points apart ("ppo.gamma=0.99"); a label
+    with nothing of its own stays whole."""
+    import re
+
+    parts = {lbl: re.split(r", (?=[A-Za-z_][\w.]*=)", lbl) for lbl in labels}
+    common = set.intersection(*(set(p) for p in parts.values())) if len(labels) > 1 else set()
+    return {lbl: ", ".join(x for x in p if x not in common) or lbl for lbl, p in parts.items()}
+
+
 def probe_figure(curves: pd.DataFrame, path: str | Path) -> Path:
     """One panel per method: the probe's success against the episode for each room source (or each
     point label, where method and rooms do not tell points apart), the longest budget of each
@@ -282,18 +293,24 @@ def probe_figure(curves: pd.DataFrame, path: str | Path) -> Path:
     by = "rooms" if distinct == len(curves[["method", "label", "budget"]].drop_duplicates()) else "label"
     longest = curves[curves.budget == curves.groupby(["method", by]).budget.transform("max")]
     methods = list(dict.fromkeys(longest.method))
-    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 3.6), sharey=True, squeeze=False)
+    short = distinct_parts(list(dict.fromkeys(longest[by]))) if by == "label" else {}
+    fig, axes = plt.subplots(1, len(methods), figsize=(max(4.2 * len(methods), 6.4), 3.6), sharey=True, squeeze=False)
     for ax, m in zip(axes[0], methods):
         for src, c in longest[longest.method == m].groupby(by, sort=False):
-            (line,) = ax.plot(c.episode + 1, c.probe, label=src.split(" (")[0] if by == "rooms" else src)
+            (line,) = ax.plot(c.episode + 1, c.probe, label=src.split(" (")[0] if by == "rooms" else short[src])
             ax.fill_between(c.episode + 1, c.probe - c.probe_seed_std, c.probe + c.probe_seed_std, alpha=0.2)
             ax.plot(c.episode + 1, c.train, ls=":", c=line.get_color(), lw=0.8)
         ax.set_title(m.upper())
         ax.set_xlabel("episode")
         ax.set_ylim(0, 1)
-    axes[0][0].set_ylabel("held-out probe success (solid), training (dotted)")
-    axes[0][-1].legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
+    axes[0][0].set_ylabel("held-out probe success (solid),\ntraining (dotted)")
+    handles, names = axes[0][-1].get_legend_handles_labels()
+    if by == "rooms":
+        axes[0][-1].legend(fontsize=7, loc="lower right")
+        fig.tight_layout()
+    else:  # point labels are long: under the panels, what tells the points apart
+        fig.legend(handles, names, fontsize=7, loc="lower center", ncol=min(2, len(names)), frameon=False)
+        fig.tight_layout(rect=(0, 0.05 + 0.045 * -(-len(names) // 2), 1, 1))
     out = rundir.save_figure(fig, path)
     plt.close(fig)
     return out
