@@ -171,5 +171,6 @@ def test_probe_legend_names_what_tells_points_apart():
     c = "method=snddpg, env.room_families=('mixture',), ppo.gamma=0.999, env.reward_collision=-10.0"
     assert distinct_parts([a, b]) == {a: "ppo.gamma=0.99", b: "ppo.gamma=0.999"}
     # a tuple's commas stay inside its part
-    assert distinct_parts([b, c]) == {b: "env.room_families=('cylinders', 'boxes')", c: "env.room_families=('mixture',)"}
+    want = {b: "env.room_families=('cylinders', 'boxes')", c: "env.room_families=('mixture',)"}
+    assert distinct_parts([b, c]) == want
     assert distinct_parts([a]) == {a: a} and distinct_parts([a, a]) == {a: a}
