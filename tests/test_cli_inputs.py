@@ -121,7 +121,8 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
 
     cmd = [sys.executable, "-m", "fedjax_nav.cli", "train", "--config", "thesis/flddpg", "--out", tmp_path / "run"]
     cmd += ["--episodes", "1000", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    # without PYTHONUNBUFFERED, as a user's shell has it: the start line must be flushed by the CLI
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PYTHONUNBUFFERED")} | {"JAX_PLATFORMS": "cpu"}
     p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert p.stdout.readline().startswith("training ")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 from pathlib import Path
 
@@ -75,7 +76,8 @@ def _train(args: argparse.Namespace) -> int:
         stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{time.time() % 1 * 1e6:06.0f}-{os.getpid()}"
         out = args.out or f"runs/{cfg.method}-{stamp}"
     verb = "resuming" if args.resume else "training"
-    say = print if jax.process_index() == 0 else (lambda *a, **k: None)
+    # flushed: piped (`| tee log`, a parent process) the start line is seen when it is said, not at exit
+    say = functools.partial(print, flush=True) if jax.process_index() == 0 else (lambda *a, **k: None)
     if _auto_seed_devices(args) and cfg.run.seeds % jax.local_device_count() == 0 and jax.local_device_count() > 1:
         args.devices, args.shard = jax.local_device_count(), "seeds"  # the fast path: whole seeds per device
     try:
