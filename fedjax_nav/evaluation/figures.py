@@ -149,6 +149,14 @@ def _draw_paths(ax, paths, colors, outcomes):
     return draw_trajectories(ax, paths, colors=colors, outcomes=outcomes, lw=0.8, alpha=0.7)
 
 
+def _episodes(r, idx, colors) -> tuple[list, list, list]:
+    """The drawn paths of episodes `idx` (index tuples into r.poses' leading axes, r holding poses,
+    steps, success, collision), their colours and outcomes (success, collision or time-out)."""
+    paths = [r.poses[j][: int(r.steps[j]) + 1, :2] for j in idx]
+    outcomes = ["success" if r.success[j] else "collision" if r.collision[j] else "timeout" for j in idx]
+    return paths, colors, outcomes
+
+
 def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     """One panel per goal with every agent's attempts (a colour per agent). `ev` is a
     `runs.RunEvaluation`; max_agents draws only the first agents (default all)."""
@@ -170,16 +178,8 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     for gi in range(G):
         ax = axes[gi]
         _draw_world(ax, ev.world, ev.world_meta)
-        paths, colors, outcomes = [], [], []
-        for a in range(A_draw):
-            for k in range(K):
-                n = int(r.steps[a, gi, k]) + 1
-                paths.append(r.poses[a, gi, k, :n, :2])
-                colors.append(agent_colors[a])
-                outcomes.append(
-                    "success" if r.success[a, gi, k] else "collision" if r.collision[a, gi, k] else "timeout"
-                )
-        _draw_paths(ax, paths, colors, outcomes)
+        idx = [(a, gi, k) for a in range(A_draw) for k in range(K)]
+        _draw_paths(ax, *_episodes(r, idx, [agent_colors[a] for a, _, _ in idx]))
         st = per_goal.get(int(r.goal_index[gi]), {})
         ax.set_title(
             f"goal G{int(r.goal_index[gi])} ({r.goals[gi, 0]:g}, {r.goals[gi, 1]:g}): "
@@ -215,15 +215,8 @@ def room_trajectories(w, path: str | Path, max_agents: int | None = None) -> Pat
     for i, room in enumerate(w.rooms.itertuples()):
         ax = axes[i]
         _draw_world(ax, w.room(i), None)
-        paths, colors, outcomes = [], [], []
-        for a in range(A_draw):
-            for g in range(int(w.num_goals[i])):
-                for k in range(K):
-                    paths.append(w.poses[i, a, g, k, : int(w.steps[i, a, g, k]) + 1, :2])
-                    colors.append(color(g))
-                    ok, hit = w.success[i, a, g, k], w.collision[i, a, g, k]
-                    outcomes.append("success" if ok else "collision" if hit else "timeout")
-        _draw_paths(ax, paths, colors, outcomes)
+        idx = [(i, a, g, k) for a in range(A_draw) for g in range(int(w.num_goals[i])) for k in range(K)]
+        _draw_paths(ax, *_episodes(w, idx, [color(g) for _, _, g, _ in idx]))
         seed = f", room seed {room.room_seed}" if room.room_seed >= 0 else ""
         ax.set_title(
             f"{room.family}{seed} (room {room.room})\nsuccess {room.success:.2f}, collision "
