@@ -19,7 +19,7 @@ import yaml
 from fedjax_nav import rundir
 from fedjax_nav.cli import main
 from fedjax_nav.config import from_dict, save_config
-from fedjax_nav.evaluation import suite
+from fedjax_nav.evaluation import suite, suite_files
 
 STEPS = 60  # the time-out: 60 x 0.1 s x 0.25 m/s = 1.5 m of driving
 ROOMS = {  # start 0 faces +x; the constant actor drives straight on
@@ -130,13 +130,13 @@ def test_globs_files_and_folders_select_and_name(evaluated, tmp_path, monkeypatc
     assert [f.name for f in suite.world_files(str(maps / "wall.json"))] == ["wall.json"]
     for arg in (str(maps), str(maps) + "/", str(maps / "*.yaml"), str(maps / "wall.json")):
         assert suite.is_file_suite(arg) and suite.suite_folder(arg) == "maps"
-    world, fams, seeds, files = suite.file_suite(str(maps))
+    world, fams, seeds, files = suite_files.file_suite(str(maps))
     assert world.goals.shape[0] == 3 and list(fams) == ["far", "open", "wall"]
     assert world.segments.shape[1] == max(4 + len(r.get("segments", [])) for r in ROOMS.values())  # padded
     # two files with one stem: the file names tell the families apart
     (tmp_path / "a.json").write_text(json.dumps(ROOMS["open.yaml"]))
     (tmp_path / "a.yaml").write_text(yaml.safe_dump(ROOMS["open.yaml"]))
-    assert list(suite.file_suite(str(tmp_path))[1]) == ["a.json", "a.yaml"]
+    assert list(suite_files.file_suite(str(tmp_path))[1]) == ["a.json", "a.yaml"]
     # a suite name wins over a folder of the same name in the working folder
     monkeypatch.chdir(tmp_path)
     (tmp_path / "probe").mkdir()

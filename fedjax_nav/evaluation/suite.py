@@ -46,7 +46,6 @@ from fedjax_nav.evaluation import paths
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
 from fedjax_nav.evaluation.runs import RunAgents, greedy_policy, load_run
-from fedjax_nav.evaluation.suite_files import file_suite as file_suite  # re-exported: the suite's own names
 from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
 from fedjax_nav.evaluation.suite_stats import TAIL, family_row
 from fedjax_nav.worlds import WorldError
