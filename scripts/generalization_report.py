@@ -19,7 +19,7 @@ import pandas as pd
 
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
-from fedjax_nav.experiments.generalization import report
+from fedjax_nav.experiments.generalization import report, report_name
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("out", help="the sweep's output folder (its points/ are read)")
@@ -28,7 +28,12 @@ ap.add_argument(
     default=str(SWEEP_DIR / "generalization.yaml"),
     help="the sweep file or shipped name; its name prefixes the report's files",
 )
-ap.add_argument("--suite", default="heldout", help="held-out suite (default heldout: 50 rooms per family x 4 goals)")
+ap.add_argument(
+    "--suite",
+    default="heldout",
+    help="held-out suite (default heldout: 50 rooms per family x 4 goals); another suite's tables are "
+    "named after it (<sweep>_dense-heldout.csv) beside the heldout ones",
+)
 ap.add_argument("--suite-attempts", type=int, default=1, help="attempts per agent, room and goal (default 1)")
 ap.add_argument("--attempts", type=int, default=4, help="arena attempts per agent and goal (default 4)")
 ap.add_argument("--no-eval", action="store_true", help="tables from what is already evaluated")
@@ -47,7 +52,7 @@ report(
     copy_figures=a.figures or None,
 )
 
-table = Path(a.out) / f"{sweep.name}.csv"
+table = Path(a.out) / f"{report_name(sweep.name, a.suite)}.csv"
 TAIL = {
     "all": "success",
     "all_worst10": "worst 10%",

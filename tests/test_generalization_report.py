@@ -174,3 +174,28 @@ def test_probe_legend_names_what_tells_points_apart():
     want = {b: "env.room_families=('cylinders', 'boxes')", c: "env.room_families=('mixture',)"}
     assert distinct_parts([b, c]) == want
     assert distinct_parts([a]) == {a: a} and distinct_parts([a, a]) == {a: a}
+
+
+def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
+    """The heldout report's tables are kept when the same points are reported on dense-heldout:
+    the second suite's files carry its name."""
+    import shutil
+
+    from fedjax_nav.experiments.generalization import report_name
+
+    p = _point(sweep, "flddpg-procedural")
+    _write(tmp_path / "points" / p.id, [0.7, 0.7], [1.0, 0.9], {f: [0.9, 0.8] for f in FAMILIES})
+    dense = tmp_path / "points" / p.id / "eval" / "dense-heldout"
+    shutil.copytree(tmp_path / "points" / p.id / "eval" / "heldout", dense)
+    fam = pd.read_csv(dense / "suite_families.csv")
+    fam = fam.assign(family=fam.family.replace({"walls": "maze"}), success=0.1)
+    fam.to_csv(dense / "suite_families.csv", index=False)
+    report(sweep, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    report(sweep, tmp_path, suite="dense-heldout", evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    assert report_name("generalization", "dense-heldout") == "generalization_dense-heldout"
+    held = pd.read_csv(tmp_path / "res" / "generalization.csv")
+    assert "walls" in held and held.walls[0] == pytest.approx(0.85)
+    d = pd.read_csv(tmp_path / "res" / "generalization_dense-heldout.csv")
+    assert "maze" in d and "walls" not in d and d.maze[0] == pytest.approx(0.1)
+    assert (tmp_path / "generalization_dense-heldout.md").exists()
+    assert (tmp_path / "res" / "generalization_dense-heldout_goal.csv").exists()

@@ -26,8 +26,19 @@ from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.experiments.thesis_report import md_table
 
 
+def report_name(sweep_name: str, suite: str = "heldout") -> str:
+    """The stem of a report's files: the sweep's name on the default `heldout` suite, the sweep's
+    name and the suite's folder on any other (generalization_1e8_dense-heldout), so that a report on
+    a second suite writes beside the first instead of over it."""
+    from fedjax_nav.evaluation.suite_files import suite_folder
+
+    if suite == "heldout":
+        return sweep_name
+    return f"{sweep_name}_{re.sub(r'[^A-Za-z0-9.-]+', '_', suite_folder(suite)).strip('_')}"
+
+
 def tables(name: str) -> tuple[str, str, str]:
-    """The report's table files for the sweep `name`."""
+    """The report's table files for the report stem `name` (`report_name`)."""
     return f"{name}.csv", f"{name}_per_seed.csv", f"{name}_goal.csv"
 
 
@@ -86,7 +97,8 @@ def report(
     t, ps = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite)
     fams = families_of(t)
     g = gz.goal(t, fams) if len(t) else t
-    name, files = sweep.name, tables(sweep.name)
+    name = report_name(sweep.name, suite)
+    files = tables(name)
     for fname, df in zip(files, (t, ps, g)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
     md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
