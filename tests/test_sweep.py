@@ -497,3 +497,40 @@ def test_two_sweeps_sharing_a_folder_keep_their_own_tables(tiny, tmp_path):
     assert before == {f: (out / f).read_bytes() for f in before}
     assert len(pd.read_csv(out / "tables" / "tiny-subset" / "summary.csv")) == 1 and len(summ) == 1
     assert any("tables of sweep 'tiny'" in m for m in msgs)
+
+
+def test_only_selects_points_by_their_values(tmp_path):
+    """`sweep --only KEY=VALUE`: values of one key are alternatives, keys must all hold; values are
+    read as --set reads them; a bad key, a bad value or no match is one error naming it."""
+    sweep = sf.load_sweep(write_sweep(tmp_path))
+    pick = sf.select(sweep, ["fed.tau=0.5"])
+    assert [p.cfg.ddpg.buffer_size for p in pick] == [16, 48] and {p.cfg.fed.tau for p in pick} == {0.5}
+    pick = sf.select(sweep, ["fed.tau=0.5", "fed.tau=1", "ddpg.buffer_size=48"])
+    assert [(p.cfg.fed.tau, p.cfg.ddpg.buffer_size) for p in pick] == [(0.5, 48), (1.0, 48)]
+    assert sf.select(sweep) == sweep.points
+    for only, match in [
+        (["fed.tau=0.25"], "matches none of the 6 points of tiny"),
+        (["fed.nope=1"], "nope"),
+        (["fed.tau=abc"], "fed.tau"),
+        (["fed.tau"], "key=value"),
+    ]:
+        with pytest.raises(sf.SweepError, match=match):
+            sf.select(sweep, only)
+
+
+def test_cli_sweep_only_trains_the_selected_points_and_tables_the_rest(tiny, tmp_path, capsys):
+    """The selected point trains alone, to the numbers of the whole sweep; the others stay
+    untrained and the tables are written for what is done."""
+    out = tmp_path / "only"
+    path = tiny["folder"] / "tiny.yaml"
+    argv = ["sweep", str(path), "--out", str(out), "--quiet", "--only", "fed.tau=0.5", "--only", "ddpg.buffer_size=16"]
+    assert cli.main(argv) == 0
+    (p,) = [p for p in tiny["sweep"].points if p.cfg.fed.tau == 0.5 and p.cfg.ddpg.buffer_size == 16]
+    assert sorted(d.name for d in (out / "points").iterdir()) == [p.id]
+    a, b = _run_metrics(out / "points" / p.id), _run_metrics(tiny["out"] / "points" / p.id)
+    np.testing.assert_array_equal(a["goals"], b["goals"])
+    np.testing.assert_allclose(a["reward"], b["reward"], rtol=1e-5, atol=1e-6)
+    assert "fed.tau=0.5, ddpg.buffer_size=16" in capsys.readouterr().out
+    assert cli.main(["sweep", str(path), "--out", str(out), "--quiet", "--only", "fed.tau=7"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "fed.tau" in err and len(err.splitlines()) == 1

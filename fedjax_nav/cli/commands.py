@@ -273,18 +273,19 @@ def _sweep(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from fedjax_nav import rundir
-    from fedjax_nav.config.sweepfile import SweepError, load_sweep
+    from fedjax_nav.config.sweepfile import SweepError, load_sweep, select
     from fedjax_nav.experiments.sweeps import run_sweep
 
     try:
         tb = ["run.tensorboard=true"] if args.tensorboard else []
         sweep = load_sweep(args.file, overrides=list(args.set or []) + tb, seeds=args.seeds)
+        points = select(sweep, args.only or ())
     except SweepError as e:
         raise UserError(str(e)) from None
     budget = _memory_budget(args.memory_budget)
     out = Path(args.out or f"runs/sweeps/{sweep.name}")
     with _lock(out, "sweep folder"):
-        summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet, devices=args.devices)
+        summ, stats = run_sweep(sweep, out, budget=budget, progress=not args.quiet, devices=args.devices, points=points)
     if len(summ):
         cols = ["label", "seeds", "success_last", "success_last_std", "reward_last", "reward_last_std"]
         print(summ[cols].to_string(index=False, float_format=lambda x: f"{x:.3f}"))

@@ -259,6 +259,13 @@ def add_sweep(sub) -> None:
     p.add_argument("--seeds", type=int, default=None, help="seeds per grid point (default: the file's)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a field of every point")
     p.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>); run again to resume")
+    p.add_argument(
+        "--only",
+        action="append",
+        metavar="KEY=VALUE",
+        help="train only the points with this value (repeat: values of one key are alternatives, different "
+        "keys must all hold, e.g. --only method=iddpg --only method=snddpg); the tables cover the whole sweep",
+    )
     _batch_flags(p)
     p.set_defaults(func=_sweep)
 

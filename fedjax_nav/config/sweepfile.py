@@ -227,3 +227,33 @@ def load_sweep(
     return Sweep(
         name, path, str(spec.get("description", "")), n_seeds, keys, points, thesis, bool(spec.get("evaluate", False))
     )
+
+
+def select(sweep: Sweep, only: list[str] | tuple = ()) -> tuple[Point, ...]:
+    """The points of `sweep` that `only` selects (`fedjax-nav sweep --only KEY=VALUE`): values of one
+    key are alternatives, different keys must all hold (`--only method=iddpg --only method=snddpg
+    --only run.episodes=300`). A point matches `KEY=VALUE` when setting it changes nothing of the
+    point's config, so values are read and checked as `--set` reads them; no `only`: every point.
+    A bad key or value, or a selection that matches no point, raises `SweepError` naming it."""
+    from fedjax_nav.config import apply_overrides, from_dict, to_dict
+
+    by_key: dict[str, list[str]] = {}
+    for item in only:
+        if "=" not in item:
+            raise SweepError(f"--only: {show(item)} is not of the form key=value (e.g. method=iddpg)")
+        by_key.setdefault(item.split("=", 1)[0].strip(), []).append(item)
+
+    errors: list[str] = []
+
+    def holds(p: Point, item: str) -> bool:
+        try:
+            return from_dict(apply_overrides(to_dict(p.cfg), [item], src="--only"), "--only") == p.cfg
+        except ConfigError as e:  # a value this point's config refuses: not this point
+            errors.append(str(e))
+            return False
+
+    chosen = tuple(p for p in sweep.points if all(any(holds(p, i) for i in items) for items in by_key.values()))
+    if not chosen:  # say why: the first refusal (a bad key or value, as --set names it), else no match
+        none = f"--only {' '.join(only)}: matches none of the {len(sweep.points)} points of {sweep.name}"
+        raise SweepError(errors[0] if errors else none)
+    return chosen

@@ -21,13 +21,13 @@ def run_sweep(
     progress: bool = True,
     echo: Callable[[str], None] = print,
     devices: int | None = None,
+    points: tuple | None = None,
 ) -> tuple[pd.DataFrame, dict]:
-    """What `fedjax-nav sweep` does: train the missing points, write the tables. Returns
-    (summary table, run stats)."""
+    """What `fedjax-nav sweep` does: train the missing points (of `points` only, where given:
+    `sweepfile.select`), write the tables of the whole sweep. Returns (summary table, run stats)."""
     out = Path(out)
-    stats = run_jobs(
-        merge_jobs(sweep.points), out, budget, progress, desc=f"sweep {sweep.name}", echo=echo, devices=devices
-    )
+    todo = sweep.points if points is None else points
+    stats = run_jobs(merge_jobs(todo), out, budget, progress, desc=f"sweep {sweep.name}", echo=echo, devices=devices)
     tables = tables_dir(sweep, out)
     stats["tables"] = str(tables)
     write_tables(sweep, rundir.points_dir(out), tables)
