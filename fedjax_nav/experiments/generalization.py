@@ -26,6 +26,12 @@ from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.experiments.thesis_report import md_table
 
 
+def _slug(text: str) -> str:
+    """`text` as part of a file name: runs of other characters than letters, digits, '.' and '-'
+    become one '_', none at either end."""
+    return re.sub(r"[^A-Za-z0-9.-]+", "_", text).strip("_")
+
+
 def report_name(sweep_name: str, suite: str = "heldout") -> str:
     """The stem of a report's files: the sweep's name on the default `heldout` suite, the sweep's
     name and the suite's folder on any other (generalization_1e8_dense-heldout), so that a report on
@@ -34,7 +40,7 @@ def report_name(sweep_name: str, suite: str = "heldout") -> str:
 
     if suite == "heldout":
         return sweep_name
-    return f"{sweep_name}_{re.sub(r'[^A-Za-z0-9.-]+', '_', suite_folder(suite)).strip('_')}"
+    return f"{sweep_name}_{_slug(suite_folder(suite))}"
 
 
 def tables(name: str) -> tuple[str, str, str]:
@@ -125,7 +131,7 @@ def report(
         for _, r in t.iterrows():  # the worst rooms of every point's suite evaluation
             src = worst_figure(points / r.point, suite)
             if src.exists():
-                figures[f"{name}_worst_rooms_{re.sub(r'[^A-Za-z0-9.-]+', '_', r.label).strip('_')}.png"] = src
+                figures[f"{name}_worst_rooms_{_slug(r.label)}.png"] = src
         copied += rundir.copy_into(copy_figures, figures)
     echo(f"{name} report: {len(t)} point(s) in {out}/{name}.md; {len(figs)} figure(s)")
     return {"points": len(t), "figures": figs, "copied": copied}
