@@ -197,6 +197,16 @@ def box_edges(centre, sides):
 def assemble(spec: RoomSpec, W, H, segments, circles, ep: Endpoints) -> World:
     """The World: the 4 outer walls, then `segments` f32[m, 4], padded to `padded_shape(spec)`;
     `circles` f32[n, 3] padded; start and goal rows beyond the counts repeat row 0."""
+    return pad_world(
+        spec, W, H, segments, circles, ep.starts, ep.yaw, ep.start_on, ep.goals, ep.goal_on, ep.num_starts, ep.num_goals
+    )
+
+
+def pad_world(spec: RoomSpec, W, H, segments, circles, starts, yaw, start_on, goals, goal_on, num_starts, num_goals):
+    """A generated room as a World of the shapes `padded_shape(spec)`, for every family: the 4 outer
+    walls of the W x H room, then `segments` f32[m, 4], zero rows to pad; `circles` f32[n, 3], zero
+    rows to pad; starts f32[S, 2] with `yaw` f32[S] and goals f32[G, 2], where the rows off
+    `start_on` / `goal_on` (and the padding) repeat row 0."""
     M, C, S_out, G_out = padded_shape(spec)
     hw, hh = W / 2, H / 2
     outer = jnp.stack(
@@ -210,19 +220,19 @@ def assemble(spec: RoomSpec, W, H, segments, circles, ep: Endpoints) -> World:
     segs = jnp.concatenate([outer, segments.reshape(-1, 4)])
     segs = jnp.concatenate([segs, jnp.zeros((M - segs.shape[0], 4), jnp.float32)])
     circles = jnp.concatenate([circles.reshape(-1, 3), jnp.zeros((C - circles.size // 3, 3), jnp.float32)])
-    S, G = ep.starts.shape[0], ep.goals.shape[0]
-    starts = jnp.concatenate([ep.starts, ep.yaw[:, None]], -1)
-    starts = jnp.where(ep.start_on[:, None], starts, starts[0])
+    S, G = starts.shape[0], goals.shape[0]
+    starts = jnp.concatenate([starts, yaw[:, None]], -1)
+    starts = jnp.where(start_on[:, None], starts, starts[0])
     starts = jnp.concatenate([starts, jnp.broadcast_to(starts[0], (S_out - S, 3))])
-    goals = jnp.where(ep.goal_on[:, None], ep.goals, ep.goals[0])
+    goals = jnp.where(goal_on[:, None], goals, goals[0])
     goals = jnp.concatenate([goals, jnp.broadcast_to(goals[0], (G_out - G, 2))])
     return World(
         segments=segs.astype(jnp.float32),
         circles=circles.astype(jnp.float32),
         starts=starts.astype(jnp.float32),
-        num_starts=ep.num_starts.astype(jnp.int32),
+        num_starts=jnp.asarray(num_starts).astype(jnp.int32),
         goals=goals.astype(jnp.float32),
-        num_goals=ep.num_goals.astype(jnp.int32),
+        num_goals=jnp.asarray(num_goals).astype(jnp.int32),
         size=jnp.stack([W, H]).astype(jnp.float32),
     )
 

@@ -69,12 +69,12 @@ import jax
 import jax.numpy as jnp
 
 from fedjax_nav.worlds import World, cave, corridors, forest, maze, office, warehouse
+from fedjax_nav.worlds.layout import pad_world
 from fedjax_nav.worlds.rooms import (
     _START_TRIES,
     RoomSpec,
     _counts,
     check_spec,
-    padded_shape,
 )
 from fedjax_nav.worlds.sampling import Uniforms, box_corners, first_true, gumbel_argmax, pt_seg, seg_box, take_rows
 
@@ -188,7 +188,6 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
     c = spec.clearance
     n_cyl_slots, n_box_slots, K = _counts(spec)
     S, G = spec.starts_max, spec.goals_max
-    M_out, C_out, S_out, G_out = padded_shape(spec)
     W = rng.uniform((), spec.width_min, spec.width_max)
     H = rng.uniform((), spec.height_min, spec.height_max)
     size = jnp.stack([W, H])
@@ -287,31 +286,19 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
         boxes = jnp.zeros((0, 5), jnp.float32)
 
     # 5. The World, padded to the spec's shapes (extra starts / goals repeat row 0).
-    hw, hh = W / 2, H / 2
-    outer = jnp.stack(
-        [
-            jnp.stack([-hw, -hh, hw, -hh]),
-            jnp.stack([hw, -hh, hw, hh]),
-            jnp.stack([hw, hh, -hw, hh]),
-            jnp.stack([-hw, hh, -hw, -hh]),
-        ]
-    )
-    segs = jnp.concatenate([outer, wall_segs, box_segs])
-    segs = jnp.concatenate([segs, jnp.zeros((M_out - segs.shape[0], 4), jnp.float32)])
-    circles = jnp.concatenate([circles, jnp.zeros((C_out - circles.shape[0], 3), jnp.float32)])
-    starts = jnp.concatenate([starts_xy, yaw[:, None]], -1)
-    starts = jnp.where(s_active[:, None], starts, starts[0])
-    starts = jnp.concatenate([starts, jnp.broadcast_to(starts[0], (S_out - S, 3))])
-    goals = jnp.where(g_active[:, None], goals, goals[0])
-    goals = jnp.concatenate([goals, jnp.broadcast_to(goals[0], (G_out - G, 2))])
-    world = World(
-        segments=segs.astype(jnp.float32),
-        circles=circles.astype(jnp.float32),
-        starts=starts.astype(jnp.float32),
-        num_starts=n_starts.astype(jnp.int32),
-        goals=goals.astype(jnp.float32),
-        num_goals=n_goals.astype(jnp.int32),
-        size=size.astype(jnp.float32),
+    world = pad_world(
+        spec,
+        W,
+        H,
+        jnp.concatenate([wall_segs, box_segs]),
+        circles,
+        starts_xy,
+        yaw,
+        s_active,
+        goals,
+        g_active,
+        n_starts,
+        n_goals,
     )
     info = {
         "walls": jnp.sum(placed).astype(jnp.int32),
