@@ -88,11 +88,11 @@ def _main(argv: list[str] | None) -> int:
             os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}"
         ).strip()
     from fedjax_nav.config import ConfigError
+    from fedjax_nav.messages import one_line
     from fedjax_nav.rundir import BAD_PATH, RunDirError, WriteError
     from fedjax_nav.training.checkpoint import CheckpointError
     from fedjax_nav.training.run import DivergenceError, Interrupted
     from fedjax_nav.worlds import WorldError
-    from fedjax_nav.worlds.input_files import one_line
 
     try:
         return int(args.func(args) or 0)

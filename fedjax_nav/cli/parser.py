@@ -74,7 +74,7 @@ class OneLineParser(argparse.ArgumentParser):
         return ns, rest
 
     def error(self, message: str):
-        from fedjax_nav.worlds.input_files import one_line
+        from fedjax_nav.messages import one_line
 
         self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
 

@@ -10,7 +10,8 @@ from typing import Any
 import yaml
 
 from fedjax_nav.config import SECTIONS, TOP_LEVEL, Config, ConfigError
-from fedjax_nav.config.validate import from_dict, shorten, show
+from fedjax_nav.config.validate import from_dict
+from fedjax_nav.messages import shorten, show
 
 # Bounds of what is read (docs/reliability.md, "Hostile inputs"): a config or sweep file is a few
 # KiB and a few hundred values (the largest shipped ones: 1.4 KiB, 75 values).

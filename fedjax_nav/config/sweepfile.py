@@ -45,7 +45,7 @@ from fedjax_nav.config import (
     read_yaml,
     to_dict,
 )
-from fedjax_nav.config.validate import show
+from fedjax_nav.messages import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
 BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddpg.buffer_alloc", "run.tensorboard")

@@ -19,25 +19,9 @@ from fedjax_nav.config import (
     ConfigError,
     robot_problem,
 )
+from fedjax_nav.messages import show
 
 # ----------------------------------------------------------------------------- validation
-
-
-def shorten(text: str, limit: int = 80) -> str:
-    """`text`, or its first `limit` characters and how long it was (`worlds.input_files.shorten`)."""
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text):,} chars)"
-
-
-def show(value: Any, limit: int = 80) -> str:
-    """repr(value) for an error message, cut to `limit` characters (`worlds.input_files.show`;
-    repeated here because config does not import the worlds package, which imports jax)."""
-    try:
-        text = repr(value)
-    except ValueError:  # an int of more than 4300 digits has no repr
-        text = f"<an integer of about {int(value.bit_length() * 0.30103) + 1:,} digits>"
-    except RecursionError:
-        text = f"<a {type(value).__name__} nested too deeply to show>"
-    return shorten(text, limit)
 
 
 # The program's JAX values are int32 and float32 (training.hparams): a value beyond them would

@@ -346,13 +346,13 @@ def run_cli(args: argparse.Namespace) -> int:
             raise ExportError(f"--format {args.format!r}: unknown format (choose from {', '.join(FORMATS)})")
         written = export_run(args.run_dir, args.out, args.format, seed, agent, getattr(args, "force", False))
     except ExportError as e:
-        from fedjax_nav.worlds.input_files import one_line
+        from fedjax_nav.messages import one_line
 
         print(f"error: {one_line(e)}", file=sys.stderr)
         return 2
     except OSError as e:  # a path that cannot be a folder: 2; a full or read-only disk: 4 (docs/reliability.md)
+        from fedjax_nav.messages import one_line
         from fedjax_nav.rundir import BAD_PATH
-        from fedjax_nav.worlds.input_files import one_line
 
         print(f"error: {one_line(f'{e.filename or args.out}: {e.strerror or e}')}", file=sys.stderr)
         return 2 if e.errno in BAD_PATH else 4

@@ -13,8 +13,8 @@ import numpy as np
 
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.evaluation.limits import EvalError
+from fedjax_nav.messages import show
 from fedjax_nav.worlds import WorldError
-from fedjax_nav.worlds.input_files import show
 from fedjax_nav.worlds.suites import SUITE_GROUPS, SUITES, suite_rooms
 
 WORLD_SUFFIXES = (".json", ".yaml", ".yml")  # the world files of a folder (worlds.load's formats)

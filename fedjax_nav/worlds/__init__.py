@@ -25,8 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from fedjax_nav.messages import shorten, show
 from fedjax_nav.worlds import input_files
-from fedjax_nav.worlds.input_files import shorten, show
 
 SHIPPED = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5", "eval")
 THESIS_TRAIN = ("train-0", "train-2", "train-3", "train-4", "train-5")  # thesis dropped room 1
