@@ -38,6 +38,7 @@ from bench_dense import (  # noqa: E402
 )
 
 from fedjax_nav.env import NavEnv, make_params  # noqa: E402
+from fedjax_nav.experiments.bench import random_rollout  # noqa: E402
 from fedjax_nav.worlds import procedural, rooms, suites  # noqa: E402
 
 
@@ -48,17 +49,7 @@ def family_cases(family: str, n: int, steps: int):
     world = procedural.generate_batch(room_keys, spec)
     env, params = NavEnv(num_beams=NUM_BEAMS, max_range=MAX_RANGE), make_params(world)
 
-    def rollout(key, params):
-        k0, k1 = jax.random.split(key)
-        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
-        _, state = env.reset(k0, params)
-
-        def body(carry, xs):
-            state, acc = carry
-            obs, state, r, *_ = env.step(xs[0], state, xs[1], params)
-            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
-
-        return jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))[0][1]
+    rollout = random_rollout(env, steps)
 
     keys = jax.random.split(jax.random.key(0), n)
     poses = jnp.concatenate([world.starts[:, 0, :2], jnp.zeros((n, 1))], -1)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 def program(robot, steps: int, batch: int):
     from fedjax_nav import worlds
     from fedjax_nav.env import NavEnv, make_params
+    from fedjax_nav.experiments.bench import random_rollout
 
     names = worlds.THESIS_TRAIN
     world = worlds.load_many(names)
@@ -44,18 +45,7 @@ def program(robot, steps: int, batch: int):
     idx = jnp.arange(batch) % len(names)
     params = make_params(jax.tree.map(lambda x: x[idx], world), **traced)
 
-    def rollout(key, p):
-        k0, k1 = jax.random.split(key)
-        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
-        _, state = env.reset(k0, p)
-
-        def body(carry, xs):
-            state, acc = carry
-            k, a = xs
-            obs, state, r, *_ = env.step(k, state, a, p)
-            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
-
-        return jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))[0][1]
+    rollout = random_rollout(env, steps)
 
     f = jax.jit(jax.vmap(rollout))
     keys = jax.random.split(jax.random.key(0), batch)

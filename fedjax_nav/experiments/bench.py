@@ -60,6 +60,28 @@ def procedural_rooms(family: str = "mixture", n: int = 64):
     return procedural.generate_batch(keys, RoomSpec(family=family))
 
 
+def random_rollout(env, steps: int):
+    """`rollout(key, params) -> f32[]`: one robot driving `steps` uniform random actions (linear
+    in [0, 1], angular in [-1, 1]) from a reset, summing its observations and rewards so that
+    nothing is dead code: what every env benchmark times (vmapped and jitted by the caller)."""
+
+    def rollout(key, params):
+        k0, k1 = jax.random.split(key)
+        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
+        _, state = env.reset(k0, params)
+
+        def body(carry, xs):
+            state, acc = carry
+            k, a = xs
+            obs, state, r, *_ = env.step(k, state, a, params)
+            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
+
+        (state, acc), _ = jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))
+        return acc
+
+    return rollout
+
+
 def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None, family: str | None = None) -> list[dict]:
     """Env-only agent-steps/s over the named worlds (the thesis's training rooms by default), or
     over 64 procedural rooms of `family`."""
@@ -73,19 +95,7 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None, famil
         world, n, label = procedural_rooms(family), 64, f"procedural {family} rooms"
     env = NavEnv()
 
-    def rollout(key, params):
-        k0, k1 = jax.random.split(key)
-        actions = jax.random.uniform(k1, (steps, 2), minval=jnp.array([0.0, -1.0]), maxval=1.0)
-        _, state = env.reset(k0, params)
-
-        def body(carry, xs):
-            state, acc = carry
-            k, a = xs
-            obs, state, r, term, trunc, _ = env.step(k, state, a, params)
-            return (state, acc + jnp.sum(obs) + r), None  # consume obs: no dead-code elimination
-
-        (state, acc), _ = jax.lax.scan(body, (state, 0.0), (jax.random.split(k0, steps), actions))
-        return acc
+    rollout = random_rollout(env, steps)
 
     rows = []
     ndev = jax.local_device_count()
