@@ -11,10 +11,9 @@ import math
 from dataclasses import replace
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_generate import D_C, cli, nearest, real_rows, room_at, unreachable_pairs
+from test_generate import D_C, cli, draw_families, family_keys, nearest, real_rows, room_at, unreachable_pairs
 
 from fedjax_nav import worlds
 from fedjax_nav.worlds import WorldError, procedural, rooms, suites
@@ -24,23 +23,10 @@ DENSITIES = (1.0, 0.5, 0.0)
 LOW = 4  # rooms per family checked at each lower density
 
 
-def family_keys(family):
-    seeds = suites.suite_seeds(f"{family}-50")[:4]
-    return jnp.concatenate(
-        [jax.vmap(suites.room_key)(jnp.asarray(seeds)), jax.vmap(suites.train_room_key)(jnp.arange(KEYS - 4))]
-    )
-
-
 @pytest.fixture(scope="module")
 def drawn():
-    """{family: (spec, {density: (World [KEYS], info)})}."""
-    out = {}
-    for family in rooms.DENSE_FAMILIES:
-        spec = rooms.make_spec(family)
-        f = jax.jit(jax.vmap(lambda k, d, spec=spec: procedural.generate_with_info(k, spec, d), (0, None)))
-        keys = family_keys(family)
-        out[family] = (spec, {d: jax.device_get(f(keys, d)) for d in DENSITIES})
-    return out
+    """{family: (spec, {density: (World [KEYS], info)})}; one compilation per family."""
+    return draw_families(rooms.DENSE_FAMILIES, KEYS, DENSITIES)
 
 
 def obstacles(room):
@@ -154,7 +140,7 @@ def test_density_thins_toward_an_empty_room(drawn, family):
     spec, by_density = drawn[family]
     full, half, empty = (by_density[d] for d in DENSITIES)
     # density 1 is the room `generate` draws by default
-    default = jax.jit(lambda k: worlds.generate(k, spec))(family_keys(family)[5])
+    default = jax.jit(lambda k: worlds.generate(k, spec))(family_keys(family, KEYS, suite=4)[5])
     for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(room_at(full[0], 5))):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-5)
     for i in range(LOW):

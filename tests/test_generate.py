@@ -114,12 +114,25 @@ def nearest(room, p):
 # ----------------------------------------------------------------------------- fixtures
 
 
-def family_keys(family):
-    """The first 50 keys are the family's held-out suite, the rest training keys."""
-    suite_seeds = gen.suite_seeds(f"{family}-50")
+def family_keys(family, n=ROOMS_PER_FAMILY, suite=50):
+    """`n` keys: the first `suite` rooms of the family's held-out suite, then training keys."""
+    suite_seeds = gen.suite_seeds(f"{family}-50")[:suite]
     suite_keys = jax.vmap(gen.room_key)(jnp.asarray(suite_seeds))
-    train_keys = jax.vmap(gen.train_room_key)(jnp.arange(ROOMS_PER_FAMILY - len(suite_seeds)))
+    train_keys = jax.vmap(gen.train_room_key)(jnp.arange(n - len(suite_seeds)))
     return jnp.concatenate([suite_keys, train_keys])
+
+
+def draw_families(families, n, densities):
+    """{family: (spec, {density: (World [n], info)})}: 4 held-out and n - 4 training rooms of each
+    family at each density, one compiled, vmapped call per family (the density is traced)."""
+    out = {}
+    for family in families:
+        spec = rooms.make_spec(family)
+        f = jax.jit(jax.vmap(lambda k, d, spec=spec: procedural.generate_with_info(k, spec, d), (0, None)))
+        keys = family_keys(family, n, suite=4)
+        out[family] = (spec, {d: jax.device_get(f(keys, d)) for d in densities})
+        assert f._cache_size() == 1  # one program for every density
+    return out
 
 
 @pytest.fixture(scope="session")

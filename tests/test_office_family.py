@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_generate import D_C, nearest, real_rows, room_at, unreachable_pairs
+from test_generate import D_C, draw_families, nearest, real_rows, room_at, unreachable_pairs
 
 from fedjax_nav import worlds
 from fedjax_nav.worlds import WorldError, procedural, rooms, suites
@@ -25,24 +25,10 @@ DENSITIES = (1.0, 0.5, 0.0)
 LOW = 8  # rooms per family checked at each lower density
 
 
-def family_keys(family):
-    seeds = suites.suite_seeds(f"{family}-50")[:4]
-    return jnp.concatenate(
-        [jax.vmap(suites.room_key)(jnp.asarray(seeds)), jax.vmap(suites.train_room_key)(jnp.arange(KEYS - 4))]
-    )
-
-
 @pytest.fixture(scope="module")
 def drawn():
     """{family: (spec, {density: (World [KEYS], info)})}; one compilation per family."""
-    out = {}
-    for family in FAMILIES:
-        spec = rooms.make_spec(family)
-        f = jax.jit(jax.vmap(lambda k, d, spec=spec: procedural.generate_with_info(k, spec, d), (0, None)))
-        keys = family_keys(family)
-        out[family] = (spec, {d: jax.device_get(f(keys, d)) for d in DENSITIES})
-        assert f._cache_size() == 1  # the density is traced: one program for every density
-    return out
+    return draw_families(FAMILIES, KEYS, DENSITIES)
 
 
 def obstacles(room):
