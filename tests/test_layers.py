@@ -11,6 +11,7 @@ PKG = Path(__file__).resolve().parents[1] / "fedjax_nav"
 
 # Lowest first. Packages in one layer do not import each other.
 LAYERS = [
+    ["messages"],  # the error lines' helpers, standard library only
     ["methods", "robots", "worlds", "configs"],
     ["env"],
     ["agents", "federated"],
