@@ -199,3 +199,32 @@ def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
     assert "maze" in d and "walls" not in d and d.maze[0] == pytest.approx(0.1)
     assert (tmp_path / "generalization_dense-heldout.md").exists()
     assert (tmp_path / "res" / "generalization_dense-heldout_goal.csv").exists()
+
+
+def test_per_net_rows_name_the_rooms_each_network_trained_on(sweep, tmp_path):
+    """A heterogeneous fleet's robot i trained on family i; a central learner's one network on all
+    of them: <name>_per_net.csv gives each network's success per held-out family and overall."""
+    fed, central = _point(sweep, "flddpg-hetero"), _point(sweep, "snddpg-hetero")
+    fams = {f: [0.5, 0.5] for f in FAMILIES}
+    for p in (fed, central):
+        _write(tmp_path / "points" / p.id, [1.0, 1.0], [0.5, 0.5], fams)
+    # network i succeeds on walls in i of its 4 episodes there, everywhere else always
+    nets = [(central, [0]), (fed, range(5))]
+    for p, ids in nets:
+        eps = [
+            {"family": f, "seed": seed, "net": i, "success": int(f != "walls" or 2 * seed + k < i)}
+            for i in ids
+            for f in FAMILIES
+            for seed in range(2)
+            for k in range(2)
+        ]
+        pd.DataFrame(eps).to_csv(tmp_path / "points" / p.id / "eval" / "heldout" / "suite_episodes.csv", index=False)
+    report(sweep, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    t = pd.read_csv(tmp_path / "res" / "generalization_per_net.csv")
+    f = t[t.method == "flddpg"].set_index("net")
+    assert f.trained_on.tolist() == ["cylinders", "boxes", "walls", "mixture", "mixture"]
+    assert f.walls.tolist() == pytest.approx([0.0, 0.25, 0.5, 0.75, 1.0])
+    assert f.cylinders.tolist() == pytest.approx([1.0] * 5)
+    assert f["all"].tolist() == pytest.approx([0.75, 0.8125, 0.875, 0.9375, 1.0])
+    c = t[t.method == "snddpg"]
+    assert len(c) == 1 and c.trained_on.iloc[0] == "cylinders+boxes+walls+mixture" and c.walls.iloc[0] == 0.0

@@ -6,6 +6,7 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
 
     table(sweep, points_dir, suite)     one row per finished point
     per_seed(sweep, points_dir, suite)  one row per point and training seed
+    per_net(sweep, points_dir, suite)   one row per point and network, with the rooms it trained on
     readable(table, families)           the same as strings (mean +- std, [seed CI]) for docs
     goal(table, families)               the issue's goal per procedurally trained point
     figure(table, families, path)       success per family and in the arena, with seed CIs
@@ -116,6 +117,39 @@ def per_seed(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataF
             if fams is not None and seed in fams.index:
                 row.update(fams.loc[seed].to_dict())
             rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def trained_on(cfg, net: int, nets: int) -> str:
+    """The rooms network `net` of `nets` trained on: its robot's family when the fleet has one
+    network per robot ('fixed' for the thesis rooms), the family of every robot when they share one,
+    else every robot's families (one central network)."""
+    fams = tuple(cfg.env.room_families) if cfg.env.rooms == "procedural" else ("fixed",)
+    if len(set(fams)) == 1:
+        return fams[0]
+    return fams[net] if nets == len(fams) else "+".join(dict.fromkeys(fams))
+
+
+def per_net(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
+    """One row per point and network (`net` of the suite's episodes: one per robot in federated
+    and independent fleets, one for a central learner): the rooms it trained on (`trained_on`) and
+    its held-out success per family and over all rooms, averaged over seeds, rooms and goals. In a
+    heterogeneous fleet this is where federation's gain and cost show robot by robot."""
+    rows = []
+    for p, _ in finished(sweep, Path(points_dir)):
+        eps = rundir.eval_dir(Path(points_dir) / p.id, suite) / rundir.SUITE_EPISODES
+        if not eps.exists():
+            continue
+        ep = pd.read_csv(eps)
+        if "net" not in ep:  # a hand-written or foreign file: no network to attribute episodes to
+            continue
+        fam = ep.groupby(["net", "family"])["success"].mean().unstack()
+        fam["all"] = ep.groupby("net")["success"].mean()
+        for net, r in fam.iterrows():
+            row = {"point": p.id, "label": p.label, "method": p.cfg.method, "learner": p.cfg.learner}
+            row |= {"rooms": rooms(p.cfg), "episodes": p.cfg.run.episodes, "net": int(net)}
+            row["trained_on"] = trained_on(p.cfg, int(net), len(fam))
+            rows.append(row | r.to_dict())
     return pd.DataFrame(rows)
 
 

@@ -43,9 +43,9 @@ def report_name(sweep_name: str, suite: str = "heldout") -> str:
     return f"{sweep_name}_{_slug(suite_folder(suite))}"
 
 
-def tables(name: str) -> tuple[str, str, str]:
+def tables(name: str) -> tuple[str, str, str, str]:
     """The report's table files for the report stem `name` (`report_name`)."""
-    return f"{name}.csv", f"{name}_per_seed.csv", f"{name}_goal.csv"
+    return f"{name}.csv", f"{name}_per_seed.csv", f"{name}_goal.csv", f"{name}_per_net.csv"
 
 
 def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
@@ -100,12 +100,12 @@ def report(
         for p, _ in finished(sweep, points):
             if (points / p.id / rundir.PARAMS).exists():
                 evaluate_point(points / p.id, suite, suite_attempts, arena_attempts, echo)
-    t, ps = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite)
+    t, ps, nets = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite), gz.per_net(sweep, points, suite)
     fams = families_of(t)
     g = gz.goal(t, fams) if len(t) else t
     name = report_name(sweep.name, suite)
     files = tables(name)
-    for fname, df in zip(files, (t, ps, g)):
+    for fname, df in zip(files, (t, ps, g, nets)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
     md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
     md += [md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
