@@ -94,7 +94,6 @@ def bench_env(batches=(1, 64, 1024, 4096), steps: int = 200, worlds_=None, famil
     else:
         world, n, label = procedural_rooms(family), 64, f"procedural {family} rooms"
     env = NavEnv()
-
     rollout = random_rollout(env, steps)
 
     rows = []
