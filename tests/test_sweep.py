@@ -165,6 +165,9 @@ def test_shared_configs_are_trained_once_with_the_most_seeds():
         ({"grid": {"fed.nope": [1]}}, "nope"),
         ({"base": "missing.yaml", "grid": {"fed.tau": [0.5]}}, "missing.yaml"),
         ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "ddpg.gamma"}}, "thesis.by"),
+        ({"grid": {"fed.tau": [0.5]}, "goal": {"walls": 0.9}}, "goal.walls is not a goal"),
+        ({"grid": {"fed.tau": [0.5]}, "goal": {"arena": 1.5}}, "goal.arena must be a success rate"),
+        ({"grid": {"fed.tau": [0.5]}, "goal": [0.9]}, "goal must be a mapping"),
     ],
 )
 def test_bad_sweep_files_name_the_key(tmp_path, spec, match):

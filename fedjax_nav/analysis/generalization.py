@@ -38,7 +38,6 @@ FAMILY_COLUMNS = ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "c
 TAIL_COLUMNS = ("worst10", "worst10_ci_low", "worst10_ci_high", "collision", "timeout", "path_ratio_median")
 # success by the goal's detour (evaluation.suite_stats.detour_split), where the suite's files hold it
 DETOUR_COLUMNS = ("detour_share", "success_direct", "success_detour")
-GOAL_ARENA, GOAL_FAMILY = 0.90, 0.85  # the issue's goal: arena and every held-out family
 
 
 def rooms(cfg) -> str:
@@ -224,15 +223,25 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
     return out
 
 
-def goal(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
-    """Per procedurally trained point (the issue's goal is for those): arena >= 0.90 and every
-    held-out family >= 0.85 (means over seeds, all agents), the worst family, and whether it holds."""
+def goal_text(goal: dict) -> str:
+    """'family >= 0.95, arena >= 0.95, worst10 >= 0.80': a sweep's goal (config.sweepfile.GOAL_KEYS) as read."""
+    return ", ".join(f"{k} >= {v:.2f}" for k, v in goal.items())
+
+
+def goal(t: pd.DataFrame, families: list[str], target: dict) -> pd.DataFrame:
+    """Per procedurally trained point (the goal is for those), against the sweep's `goal:` (`target`,
+    config.sweepfile.GOAL_KEYS -> threshold): every held-out family, the arena and the worst 10% of
+    all rooms (means over seeds, all agents); the worst family, and whether every threshold holds."""
+
+    def holds(v, key):
+        return key not in target or (np.isfinite(v) and v >= target[key])
+
     rows = []
     for _, r in t[t.rooms != "thesis rooms"].iterrows():
         fam = {f: r.get(f, np.nan) for f in families}
         worst = min(fam, key=lambda f: fam[f] if np.isfinite(fam[f]) else -1.0) if fam else ""
-        ok = np.isfinite(r.arena) and r.arena >= GOAL_ARENA
-        ok = ok and all(np.isfinite(v) and v >= GOAL_FAMILY for v in fam.values())
+        worst10 = r.get("all_worst10", np.nan)
+        ok = holds(r.arena, "arena") and holds(worst10, "worst10") and all(holds(v, "family") for v in fam.values())
         rows.append(
             {
                 "label": r.get("label", ""),
@@ -243,17 +252,19 @@ def goal(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
                 "arena": r.arena,
                 "worst_family": worst,
                 "worst_family_success": fam.get(worst, np.nan),
+                "worst10": worst10,
+                "goal": goal_text(target),
                 "goal_reached": bool(ok),
             }
         )
     return pd.DataFrame(rows)
 
 
-def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int | None = None) -> Path:
+def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict, episodes: int | None = None) -> Path:
     """Grouped bars: for each held-out family and the arena, one bar per trained point (method x
     rooms; the points of `episodes` only, when given), height the mean over seeds, whiskers the
-    95% bootstrap interval over training seeds (families) or +- the seed std (arena); the goal as
-    dashed lines."""
+    95% bootstrap interval over training seeds (families) or +- the seed std (arena); the sweep's
+    goal (`target`) for the families dashed, for the arena dotted."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -275,8 +286,9 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, episodes: int
         label = f"{r.method.upper()}, {r['rooms']}" + ("" if episodes is not None else f", {r.episodes} ep.")
         label = f"{r.method.upper()}: {r['label']}" if same.iloc[i] else label  # points that differ in another field
         ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label)
-    ax.axhline(GOAL_FAMILY, ls="--", c="gray", lw=0.8)
-    ax.axhline(GOAL_ARENA, ls=":", c="gray", lw=0.8)
+    for key, ls in (("family", "--"), ("arena", ":")):
+        if key in target:
+            ax.axhline(target[key], ls=ls, c="gray", lw=0.8)
     ax.set_xticks(range(len(groups)), groups)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("success (all agents)")
@@ -327,20 +339,28 @@ def probe_figure(curves: pd.DataFrame, path: str | Path) -> Path:
     by = "rooms" if distinct == len(curves[["method", "label", "budget"]].drop_duplicates()) else "label"
     longest = curves[curves.budget == curves.groupby(["method", by]).budget.transform("max")]
     methods = list(dict.fromkeys(longest.method))
-    short = distinct_parts(list(dict.fromkeys(longest[by]))) if by == "label" else {}
+    sources = list(dict.fromkeys(longest[by]))
+    short = distinct_parts(sources) if by == "label" else {}
     fig, axes = plt.subplots(1, len(methods), figsize=(max(4.2 * len(methods), 6.4), 3.6), sharey=True, squeeze=False)
     for ax, m in zip(axes[0], methods):
         for src, c in longest[longest.method == m].groupby(by, sort=False):
-            (line,) = ax.plot(c.episode + 1, c.probe, label=src.split(" (")[0] if by == "rooms" else short[src])
-            ax.fill_between(c.episode + 1, c.probe - c.probe_seed_std, c.probe + c.probe_seed_std, alpha=0.2)
+            name = src.split(" (")[0] if by == "rooms" else short[src]
+            color = f"C{sources.index(src) % 10}"  # one colour per room source in every panel
+            (line,) = ax.plot(c.episode + 1, c.probe, label=name, c=color)
+            ax.fill_between(
+                c.episode + 1, c.probe - c.probe_seed_std, c.probe + c.probe_seed_std, alpha=0.2, color=color
+            )
             ax.plot(c.episode + 1, c.train, ls=":", c=line.get_color(), lw=0.8)
         ax.set_title(m.upper())
         ax.set_xlabel("episode")
         ax.set_ylim(0, 1)
     axes[0][0].set_ylabel("held-out probe success (solid),\ntraining (dotted)")
-    handles, names = axes[0][-1].get_legend_handles_labels()
+    legend = {}  # every panel's curves, each name once (a fleet may be missing from the last panel)
+    for ax in axes[0]:
+        legend.update({n: h for h, n in zip(*ax.get_legend_handles_labels()) if n not in legend})
+    names, handles = list(legend), list(legend.values())
     if by == "rooms":
-        axes[0][-1].legend(fontsize=7, loc="lower right")
+        axes[0][-1].legend(handles, names, fontsize=7, loc="lower right")
         fig.tight_layout()
     else:  # point labels are long: under the panels, what tells the points apart
         fig.legend(handles, names, fontsize=7, loc="lower center", ncol=min(2, len(names)), frameon=False)

@@ -17,6 +17,12 @@ their tables are `fedjax_nav.analysis.sweeps`, which read the finished points fr
       by: fed.tau                    # a grid key, or `method`
       success_last: {0.0: 0.30, 0.5: 0.79, 1.0: 0.41}
     evaluate: false                  # reproduce: evaluate every point with the protocol
+    goal: {family: 0.95, arena: 0.95, worst10: 0.80}   # optional: the generalization report's goal
+
+`goal` is what the generalization report (docs/generalization.md) checks each procedurally trained
+point against: success on every held-out family, in the thesis arena and over the worst 10% of
+rooms, each a threshold in [0, 1] (a key left out is not checked). Without it the report checks
+DEFAULT_GOAL, the first generalisation experiment's goal.
 
 Every point is a resolved `Config` (its `run.seeds` = the seeds it wants). Its id hashes the
 config's non-default fields, so two sweeps (or two experiments of `reproduce`) that ask for the
@@ -52,7 +58,9 @@ BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddp
 # At most this many points per sweep file (the largest shipped one has 33): 300 x 300 took
 # minutes to read before anything was said, and would train for months here.
 MAX_POINTS = 10_000
-SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate"}
+SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate", "goal"}
+GOAL_KEYS = ("family", "arena", "worst10")  # every held-out family, the thesis arena, the worst 10% of rooms
+DEFAULT_GOAL = {"family": 0.85, "arena": 0.90}  # the first generalisation experiment's (docs/generalization.md)
 
 
 class SweepError(ConfigError):
@@ -84,6 +92,7 @@ class Sweep:
     points: tuple  # Point, grid order
     thesis: dict = field(default_factory=dict)
     evaluate: bool = False  # reproduce: evaluate every point with the protocol
+    goal: dict = field(default_factory=lambda: dict(DEFAULT_GOAL))  # GOAL_KEYS -> threshold
 
 
 def flat_config(cfg: Config) -> dict:
@@ -193,6 +202,20 @@ def _point(path: Path, values: dict, base, before: list[str], after: list[str], 
     return Point({k: (v if k == "base" else get(cfg, k)) for k, v in values.items()}, cfg)
 
 
+def _goal(path: Path, value) -> dict:
+    """`goal:` as {key: threshold} with keys of GOAL_KEYS and thresholds in [0, 1]; DEFAULT_GOAL when absent."""
+    if value is None:
+        return dict(DEFAULT_GOAL)
+    if not isinstance(value, dict) or not value:
+        raise SweepError(f"{path}: goal must be a mapping of {list(GOAL_KEYS)} to thresholds, got {show(value)}")
+    for k, v in value.items():
+        if k not in GOAL_KEYS:
+            raise SweepError(f"{path}: goal.{k} is not a goal; allowed: {list(GOAL_KEYS)}")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= 1:
+            raise SweepError(f"{path}: goal.{k} must be a success rate in [0, 1], got {show(v)}")
+    return {k: float(value[k]) for k in GOAL_KEYS if k in value}
+
+
 def _seed_count(path: Path, value) -> int:
     """`seeds:` as an int in run.seeds' range (not a float, a string, a list or a bool)."""
     hi = field_info("run.seeds").metadata["hi"]
@@ -224,9 +247,9 @@ def load_sweep(
         raise SweepError(f"{path}: thesis must be a mapping (the thesis's numbers), got {show(thesis)}")
     if thesis and thesis.get("by", keys[0] if keys else "method") not in (*keys, "method"):
         raise SweepError(f"{path}: thesis.by must be one of the grid keys {list(keys)} or 'method'")
-    return Sweep(
-        name, path, str(spec.get("description", "")), n_seeds, keys, points, thesis, bool(spec.get("evaluate", False))
-    )
+    evaluate = bool(spec.get("evaluate", False))
+    description = str(spec.get("description", ""))
+    return Sweep(name, path, description, n_seeds, keys, points, thesis, evaluate, _goal(path, spec.get("goal")))
 
 
 def select(sweep: Sweep, only: list[str] | tuple = ()) -> tuple[Point, ...]:

@@ -102,18 +102,21 @@ def report(
                 evaluate_point(points / p.id, suite, suite_attempts, arena_attempts, echo)
     t, ps, nets = gz.table(sweep, points, suite), gz.per_seed(sweep, points, suite), gz.per_net(sweep, points, suite)
     fams = families_of(t)
-    g = gz.goal(t, fams) if len(t) else t
+    g = gz.goal(t, fams, sweep.goal) if len(t) else t
     name = report_name(sweep.name, suite)
     files = tables(name)
     for fname, df in zip(files, (t, ps, g, nets)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
     md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
+    md += [f"Goal: {gz.goal_text(sweep.goal)} (the sweep file's `goal:`).", ""]
     md += [md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
     md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
     md += ["mean [95% bootstrap interval over training seeds].", ""]
     md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
-    figs = [gz.figure(t, fams, out / f"{name}_{e}.png", e) for e in sorted(set(t.episodes))] if len(t) else []
+    figs = (
+        [gz.figure(t, fams, out / f"{name}_{e}.png", sweep.goal, e) for e in sorted(set(t.episodes))] if len(t) else []
+    )
     curves = gz.probe_curves(sweep, points)
     if len(curves):
         rundir.atomic_write(out / f"{name}_probe.csv", lambda p: curves.to_csv(p, index=False))
