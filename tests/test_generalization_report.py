@@ -238,3 +238,26 @@ def test_per_net_rows_name_the_rooms_each_network_trained_on(sweep, tmp_path):
     assert f["all"].tolist() == pytest.approx([0.75, 0.8125, 0.875, 0.9375, 1.0])
     c = t[t.method == "snddpg"]
     assert len(c) == 1 and c.trained_on.iloc[0] == "cylinders+boxes+walls+mixture" and c.walls.iloc[0] == 0.0
+
+
+def test_copied_tables_keep_the_points_trained_elsewhere_in_the_sweeps_order(sweep, tmp_path):
+    """results/ holds every point reported so far: a report from a folder that lacks some points
+    (trained on another machine) keeps their rows in the copy; rows of points no longer in the
+    sweep are dropped, and both are said."""
+    fams = {f: [0.5, 0.6] for f in FAMILIES}
+    first, second = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder, p in ((a, first), (a, second), (b, second)):
+        _write(folder / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
+    res = tmp_path / "res"
+    report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    stale = pd.read_csv(res / "generalization.csv")
+    pd.concat([stale, stale.iloc[:1].assign(point="0123456789ab")]).to_csv(res / "generalization.csv", index=False)
+    said = []
+    report(sweep, b, evaluate=False, copy_tables=res, echo=said.append)
+    assert pd.read_csv(b / "generalization.csv").point.tolist() == [second.id]  # the folder's own table
+    assert pd.read_csv(res / "generalization.csv").point.tolist() == [first.id, second.id]  # grid order
+    per_seed = pd.read_csv(res / "generalization_per_seed.csv")
+    assert sorted(zip(per_seed.point, per_seed.seed)) == sorted((p.id, s) for p in (first, second) for s in (0, 1))
+    assert pd.read_csv(res / "generalization_goal.csv").point.tolist() == [second.id]  # thesis rooms: no goal
+    assert any("kept 1 row(s)" in s and "dropped 1" in s for s in said), said

@@ -244,6 +244,7 @@ def goal(t: pd.DataFrame, families: list[str], target: dict) -> pd.DataFrame:
         ok = holds(r.arena, "arena") and holds(worst10, "worst10") and all(holds(v, "family") for v in fam.values())
         rows.append(
             {
+                "point": r.get("point", ""),
                 "label": r.get("label", ""),
                 "method": r.method,
                 "rooms": r.rooms,

@@ -11,6 +11,7 @@ Report folder (the sweep's --out), named after the sweep (`generalization` here)
 report of another sweep over the same points folder (generalization_levers) writes beside it.
 Each point's suite evaluation gets its worst rooms drawn (RUN/eval/<suite>/worst_rooms.png,
 `evaluation.worst_rooms`), copied with the figures as <name>_worst_rooms_<point label>.png.
+The tables copied to results/ keep the rows of the sweep's points the folder lacks (`with_kept_rows`).
 """
 
 from __future__ import annotations
@@ -46,6 +47,29 @@ def report_name(sweep_name: str, suite: str = "heldout") -> str:
 def tables(name: str) -> tuple[str, str, str, str]:
     """The report's table files for the report stem `name` (`report_name`)."""
     return f"{name}.csv", f"{name}_per_seed.csv", f"{name}_goal.csv", f"{name}_per_net.csv"
+
+
+ROW_KEYS = (("point",), ("point", "seed"), ("point",), ("point", "net"))  # a row's identity, per table of `tables`
+
+
+def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep):
+    """`new` (a report table of the points in this folder) with the rows of the copy at `old_path`
+    whose points `new` lacks but the sweep still holds: a table copied to results/ keeps the points
+    trained on another machine, whose run folders are gone, instead of losing them. Rows in the
+    sweep's point order; returns (table, rows kept, rows dropped: points no longer in the sweep)."""
+    import pandas as pd
+
+    order = {p.id: i for i, p in enumerate(sweep.points)}
+    if not Path(old_path).exists() or not len(new):
+        return new, 0, 0
+    old = pd.read_csv(old_path)
+    if not set(keys) <= set(old.columns):  # a copy written before the column: nothing to keep by
+        return new, 0, 0
+    gone = old[~old.point.isin(set(new.point))]
+    kept = gone[gone.point.isin(order)]
+    out = pd.concat([new, kept], ignore_index=True) if len(kept) else new
+    out = out.iloc[out.point.map(order).fillna(len(order)).argsort(kind="stable")].reset_index(drop=True)
+    return out, len(kept), len(gone) - len(kept)
 
 
 def evaluate_point(folder: Path, suite: str, suite_attempts: int, arena_attempts: int, echo: Callable) -> None:
@@ -123,7 +147,16 @@ def report(
         figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
     copied = []
     if copy_tables is not None:
-        copied += rundir.copy_into(copy_tables, {n: out / n for n in files})
+        Path(copy_tables).mkdir(parents=True, exist_ok=True)
+        for fname, df, keys in zip(files, (t, ps, g, nets), ROW_KEYS):
+            dest = Path(copy_tables) / fname
+            merged, kept, dropped = with_kept_rows(df, dest, keys, sweep)
+            copied.append(rundir.atomic_write(dest, lambda p, df=merged: df.to_csv(p, index=False)))
+            if kept or dropped:
+                echo(
+                    f"{dest}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
+                    + (f"; dropped {dropped} of points no longer in the sweep" if dropped else "")
+                )
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
