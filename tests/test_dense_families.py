@@ -16,7 +16,7 @@ import pytest
 from test_generate import D_C, cli, draw_families, family_keys, nearest, real_rows, room_at, unreachable_pairs
 
 from fedjax_nav import worlds
-from fedjax_nav.worlds import WorldError, procedural, rooms, suites
+from fedjax_nav.worlds import WorldError, procedural, rooms, shapes, suites
 
 KEYS = 12  # rooms per family at density 1: 4 of the family's held-out suite, 8 training rooms
 DENSITIES = (1.0, 0.5, 0.0)
@@ -39,14 +39,14 @@ def obstacles(room):
 
 def test_families_and_their_padded_shapes():
     assert rooms.FAMILIES == rooms.BASE_FAMILIES + rooms.DENSE_FAMILIES + rooms.INDOOR_FAMILIES
-    nx, ny = rooms.maze_grid(rooms.make_spec("maze"))  # 10 m / 0.8 m cells
+    nx, ny = shapes.maze_grid(rooms.make_spec("maze"))  # 10 m / 0.8 m cells
     assert (nx, ny) == (12, 12)
-    rows, secs = rooms.warehouse_slots(rooms.make_spec("warehouse"))  # 18 m, aisles 0.9, racks 0.6 x 2
+    rows, secs = shapes.warehouse_slots(rooms.make_spec("warehouse"))  # 18 m, aisles 0.9, racks 0.6 x 2
     assert (rows, secs) == (11, 5)
-    assert rooms.padded_shape(rooms.make_spec("forest")) == (4, 150, 4, 2)
-    assert rooms.padded_shape(rooms.make_spec("warehouse")) == (4 + 4 * 40, 1, 4, 2)  # warehouse_boxes
-    assert rooms.padded_shape(rooms.make_spec("maze")) == (4 + 2 * 11 * 6, 1, 4, 2)
-    assert rooms.padded_shape(rooms.make_spec("cave")) == (4 + 192, 1, 4, 2)
+    assert shapes.padded_shape(rooms.make_spec("forest")) == (4, 150, 4, 2)
+    assert shapes.padded_shape(rooms.make_spec("warehouse")) == (4 + 4 * 40, 1, 4, 2)  # warehouse_boxes
+    assert shapes.padded_shape(rooms.make_spec("maze")) == (4 + 2 * 11 * 6, 1, 4, 2)
+    assert shapes.padded_shape(rooms.make_spec("cave")) == (4 + 192, 1, 4, 2)
     # larger maxima pad further (shapes only), e.g. to one shape with the base families and playgrounds
     for family in rooms.DENSE_FAMILIES:
         big = rooms.make_spec(family, max_segments=300, max_circles=160, max_starts=6, max_goals=5)
@@ -61,7 +61,7 @@ def test_families_and_their_padded_shapes():
 @pytest.mark.parametrize("family", rooms.DENSE_FAMILIES)
 def test_shapes_counts_and_endpoints(drawn, family):
     spec, by_density = drawn[family]
-    M, C, S, G = rooms.padded_shape(spec)
+    M, C, S, G = shapes.padded_shape(spec)
     world, info = by_density[1.0]
     assert world.segments.shape == (KEYS, M, 4) and world.circles.shape == (KEYS, C, 3)
     assert world.starts.shape == (KEYS, S, 3) and world.goals.shape == (KEYS, G, 2)
@@ -184,7 +184,7 @@ def test_warehouse_slots_are_tight_and_the_maze_is_perfect():
         warehouse_boxes=64,
     )
     _, info = jax.jit(lambda k: procedural.generate_with_info(k, wh))(suites.train_room_key(1))
-    assert int(info["racks"]) == math.prod(rooms.warehouse_slots(wh)) == 55  # the largest layout fills every slot
+    assert int(info["racks"]) == math.prod(shapes.warehouse_slots(wh)) == 55  # the largest layout fills every slot
     # with fewer box slots than racks the last racks go (fewer obstacles), reported
     _, info = jax.jit(lambda k: procedural.generate_with_info(k, replace(wh, warehouse_boxes=40)))(
         suites.train_room_key(1)
@@ -192,7 +192,7 @@ def test_warehouse_slots_are_tight_and_the_maze_is_perfect():
     assert (int(info["racks"]), int(info["boxes_dropped"])) == (40, 15)
     mz = rooms.make_spec("maze", maze_loops=0.0, width_min=10.0, height_min=10.0, maze_cell_max=0.8)
     _, info = jax.jit(lambda k: procedural.generate_with_info(k, mz))(suites.train_room_key(2))
-    nx, ny = rooms.maze_grid(mz)
+    nx, ny = shapes.maze_grid(mz)
     assert int(info["cells"]) == nx * ny
     # a spanning tree of n cells opens n - 1 of the (nx - 1) ny + nx (ny - 1) inner sides
     assert int(info["maze_walls"]) == (nx - 1) * ny + nx * (ny - 1) - (nx * ny - 1)

@@ -19,11 +19,11 @@ from scipy import ndimage
 
 from fedjax_nav import worlds
 from fedjax_nav.cli import build_parser
-from fedjax_nav.worlds import WorldError, procedural, rooms, suites
+from fedjax_nav.worlds import WorldError, procedural, rooms, shapes, suites
 
-# The generator's names in one namespace (specs: rooms, the JAX generator: procedural, keys,
-# suites and files: suites).
-gen = types.SimpleNamespace(**{**vars(rooms), **vars(procedural), **vars(suites)})
+# The generator's names in one namespace (specs: rooms, their static shapes: shapes, the JAX
+# generator: procedural, keys, suites and files: suites).
+gen = types.SimpleNamespace(**{**vars(rooms), **vars(shapes), **vars(procedural), **vars(suites)})
 
 D_C = 0.25  # the collision distance
 RES = 0.05  # grid resolution of the independent check (m)

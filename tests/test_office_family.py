@@ -17,7 +17,7 @@ import pytest
 from test_generate import D_C, draw_families, nearest, real_rows, room_at, unreachable_pairs
 
 from fedjax_nav import worlds
-from fedjax_nav.worlds import WorldError, procedural, rooms, suites
+from fedjax_nav.worlds import WorldError, procedural, rooms, shapes, suites
 
 FAMILIES = rooms.INDOOR_FAMILIES
 KEYS = 200  # rooms per family at density 1: 4 of the family's held-out suite, 196 training rooms
@@ -48,9 +48,9 @@ def test_families_are_one_tuple_and_shapes_are_fixed():
     assert rooms.FAMILIES == rooms.BASE_FAMILIES + rooms.DENSE_FAMILIES + rooms.INDOOR_FAMILIES
     assert set(procedural.DENSE_BUILDERS) == set(rooms.DENSE_FAMILIES + rooms.INDOOR_FAMILIES)
     office = rooms.make_spec("office")
-    assert rooms.office_grid(office) == (4, 3) and rooms.office_slots(office) == (34, 32, 48)
-    assert rooms.padded_shape(office) == (4 + 34 + 4 * 32, 48, 4, 2)
-    assert rooms.padded_shape(rooms.make_spec("corridors")) == (4 + 12 * 4 + 2 + 4 * 8, 1, 4, 2)
+    assert shapes.office_grid(office) == (4, 3) and shapes.office_slots(office) == (34, 32, 48)
+    assert shapes.padded_shape(office) == (4 + 34 + 4 * 32, 48, 4, 2)
+    assert shapes.padded_shape(rooms.make_spec("corridors")) == (4 + 12 * 4 + 2 + 4 * 8, 1, 4, 2)
     for family in FAMILIES:  # larger maxima pad further; None sizes take the family's
         big = rooms.make_spec(family, max_segments=300, max_circles=160, max_starts=6, max_goals=5)
         shaped = jax.eval_shape(lambda k, big=big: worlds.generate(k, big), jax.random.key(0))
@@ -62,7 +62,7 @@ def test_families_are_one_tuple_and_shapes_are_fixed():
 @pytest.mark.parametrize("family", FAMILIES)
 def test_shapes_counts_and_endpoints(drawn, family):
     spec, by_density = drawn[family]
-    M, C, S, G = rooms.padded_shape(spec)
+    M, C, S, G = shapes.padded_shape(spec)
     world, info = by_density[1.0]
     assert world.segments.shape == (KEYS, M, 4) and world.circles.shape == (KEYS, C, 3)
     assert world.starts.shape == (KEYS, S, 3) and world.goals.shape == (KEYS, G, 2)
@@ -125,7 +125,7 @@ def test_the_check_sees_closed_doors(drawn):
     different rooms), and the check says so."""
     spec, by_density = drawn["office"]
     world, _ = by_density[1.0]
-    walls, _, _ = rooms.office_slots(spec)
+    walls, _, _ = shapes.office_slots(spec)
     for i in range(3):
         room = real_rows(world, i)
         pieces = np.asarray(world.segments, np.float64)[i, 4 : 4 + walls].reshape(-1, 2, 4)
@@ -223,7 +223,7 @@ def test_a_family_mix_is_one_traced_program():
     cfg = load_config(None, ["env.rooms=procedural", "env.worlds=[train-0,train-1,train-2]"])
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, room_families=("office", "corridors", "mixture")))
     tr = TrainRooms(cfg)
-    assert tr.shape == tuple(max(x) for x in zip(*(rooms.padded_shape(rooms.make_spec(f)) for f in tr.families)))
+    assert tr.shape == tuple(max(x) for x in zip(*(shapes.padded_shape(rooms.make_spec(f)) for f in tr.families)))
     traces = []
 
     def draw(stream, block, density):

@@ -321,8 +321,8 @@ from fedjax_nav.worlds.rooms import (  # noqa: E402, F401
     RoomSpec,
     check_spec,
     make_spec,
-    padded_shape,
 )
+from fedjax_nav.worlds.shapes import padded_shape  # noqa: E402, F401
 from fedjax_nav.worlds.suites import (  # noqa: E402, F401
     SUITES,
     is_test_seed,

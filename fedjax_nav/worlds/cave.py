@@ -35,8 +35,9 @@ from fedjax_nav.worlds.layout import (
     thin_by_rank,
     trails,
 )
-from fedjax_nav.worlds.rooms import RoomSpec, cave_grid
+from fedjax_nav.worlds.rooms import RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, all_clear, seg_aabb_sq
+from fedjax_nav.worlds.shapes import cave_grid
 
 OUTSIDE = False  # cells beyond the grid count as free: rock in islands, not hugging the walls (BARN-like)
 

@@ -10,7 +10,7 @@
 3. A fraction `maze_loops` of the remaining inner walls is removed at random (loops, open spots),
    then the density knob keeps floor(d n) of the n walls left (a random subset).
 4. The walls, one cell side each, are merged into runs along each grid line: one segment row per
-   run, at most ceil(n / 2) runs on a line of n sides (`rooms.maze_wall_rows`).
+   run, at most ceil(n / 2) runs on a line of n sides (`shapes.maze_wall_rows`).
 5. Goals and starts: a random cell's centre moved by at most s_x / 2 - c, s_y / 2 - c; the
    connector goes back to the centre.
 
@@ -27,8 +27,9 @@ import jax
 import jax.numpy as jnp
 
 from fedjax_nav.worlds.layout import assemble, common_info, endpoints, grid_runs, room_size, thin_by_rank
-from fedjax_nav.worlds.rooms import RoomSpec, maze_grid
+from fedjax_nav.worlds.rooms import RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, gumbel_argmax
+from fedjax_nav.worlds.shapes import maze_grid
 
 
 def backtracker(u0, steps_u, nx, ny, NX: int, NY: int):

@@ -41,8 +41,9 @@ import numpy as np
 
 from fedjax_nav.worlds.layout import Endpoints, assemble, box_edges, common_info, compact, room_size, thin_count
 from fedjax_nav.worlds.maze import backtracker
-from fedjax_nav.worlds.rooms import _START_TRIES, RoomSpec, office_grid, office_slots
+from fedjax_nav.worlds.rooms import _START_TRIES, RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, first_true, pt_seg_sq, seg_aabb_sq, take_rows
+from fedjax_nav.worlds.shapes import office_grid, office_slots
 
 
 def swap_xy(p, flip):

@@ -70,13 +70,9 @@ import jax.numpy as jnp
 
 from fedjax_nav.worlds import World, cave, corridors, forest, maze, office, warehouse
 from fedjax_nav.worlds.layout import pad_world
-from fedjax_nav.worlds.rooms import (
-    _START_TRIES,
-    RoomSpec,
-    _counts,
-    check_spec,
-)
+from fedjax_nav.worlds.rooms import _START_TRIES, RoomSpec, check_spec
 from fedjax_nav.worlds.sampling import Uniforms, box_corners, first_true, gumbel_argmax, pt_seg, seg_box, take_rows
+from fedjax_nav.worlds.shapes import slot_counts
 
 # ----------------------------------------------------------------------------- how many draws a spec uses
 
@@ -186,7 +182,7 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
     if spec.family in DENSE_BUILDERS:
         return DENSE_BUILDERS[spec.family](rng, spec, density)
     c = spec.clearance
-    n_cyl_slots, n_box_slots, K = _counts(spec)
+    n_cyl_slots, n_box_slots, K = slot_counts(spec)
     S, G = spec.starts_max, spec.goals_max
     W = rng.uniform((), spec.width_min, spec.width_max)
     H = rng.uniform((), spec.height_min, spec.height_max)

@@ -149,7 +149,7 @@ def suite_names(name: str) -> tuple[str, ...]:
 def common_shape(specs, shapes=()) -> tuple[int, int, int, int]:
     """The (segments, circles, starts, goals) rows that fit every room of `specs` and every
     extra (segments, circles, starts, goals) in `shapes` (e.g. fixed worlds')."""
-    from fedjax_nav.worlds.rooms import padded_shape
+    from fedjax_nav.worlds.shapes import padded_shape
 
     return tuple(int(max(x)) for x in zip(*[padded_shape(s) for s in specs], *shapes))
 

@@ -40,8 +40,9 @@ from fedjax_nav.worlds.layout import (
     thin_by_rank,
     thin_count,
 )
-from fedjax_nav.worlds.rooms import RoomSpec, warehouse_slots
+from fedjax_nav.worlds.rooms import RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, aabb_gap_sq, all_clear, first_true, take_rows
+from fedjax_nav.worlds.shapes import warehouse_slots
 
 
 def _swap(p, flip):
