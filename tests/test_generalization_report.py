@@ -90,6 +90,28 @@ def test_the_report_reads_points_and_checks_the_goal(sweep, tmp_path):
     assert "| 0.800 [0.80, 0.80] |" in md and "| 0.950 +- 0.050 |" in md and "label" not in md.split("## Every")[1]
 
 
+def test_the_table_keeps_what_each_point_cost_from_its_summary(sweep, tmp_path):
+    """Bytes sent, wall time and the resume episode ride in the table (results/ outlives the run
+    folders); a summary without them (an older run) leaves them missing, not zero."""
+    fixed, proc = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
+    fams = {f: [0.5, 0.5] for f in FAMILIES}
+    _write(tmp_path / "points" / fixed.id, [0.9, 0.8], [0.5, 0.3], fams)
+    _write(tmp_path / "points" / proc.id, [0.7, 0.7], [1.0, 0.9], fams)
+    f = tmp_path / "points" / proc.id / "summary.json"
+    s = json.loads(f.read_text()) | {"fed_bytes_sent": 7.3e6, "wall_s": 1234.5, "resumed_from_episode": 20}
+    f.write_text(json.dumps(s))
+    report(sweep, tmp_path, evaluate=False, echo=lambda s: None)
+    t = pd.read_csv(tmp_path / "generalization.csv").set_index("rooms")
+    assert t.loc["procedural (mixture)", ["fed_bytes", "wall_s", "resumed_from_episode"]].tolist() == [
+        7.3e6,
+        1234.5,
+        20,
+    ]
+    assert t.loc["thesis rooms", ["fed_bytes", "wall_s"]].isna().all()
+    md = (tmp_path / "generalization.md").read_text()
+    assert "| 7.3 MB | 1,234 (from ep. 20) |" in md
+
+
 def test_the_goal_holds_only_when_every_family_the_arena_and_the_worst_tenth_pass():
     row = {"method": "flddpg", "rooms": "procedural (mixture)", "episodes": 125, "seeds": 4}
     t = pd.DataFrame(

@@ -38,6 +38,11 @@ FAMILY_COLUMNS = ("success", "ci_seeds_low", "ci_seeds_high", "ci_rooms_low", "c
 TAIL_COLUMNS = ("worst10", "worst10_ci_low", "worst10_ci_high", "collision", "timeout", "path_ratio_median")
 # success by the goal's detour (evaluation.suite_stats.detour_split), where the suite's files hold it
 DETOUR_COLUMNS = ("detour_share", "success_direct", "success_detour")
+# a point's cost, from its summary.json (training.metrics.summarize, training.sweep.run): bytes the
+# federated steps sent per seed (the whole fleet, up and down; 0 without an aggregator), training
+# wall seconds of this run (its share of a batch of runs; after a resume, only the resumed part) and
+# the episode it resumed from (0: trained in one go)
+COST_COLUMNS = {"fed_bytes": "fed_bytes_sent", "wall_s": "wall_s", "resumed_from_episode": "resumed_from_episode"}
 
 
 def rooms(cfg) -> str:
@@ -57,7 +62,8 @@ def _suite_families(folder: Path) -> pd.DataFrame | None:
 
 def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFrame:
     """One row per finished point: training success (last 25 episodes, mean and std over seeds),
-    the training goal share (`rundir.goal_share`), arena success (all agents; std over seeds), and per
+    the training goal share (`rundir.goal_share`), its cost (`COST_COLUMNS`), arena success (all
+    agents; std over seeds), and per
     held-out family the success with the 95% bootstrap interval over training seeds (`ci_seeds_*`)
     and over rooms (`ci_rooms_*`), and its tail (`TAIL_COLUMNS`) where the suite's files hold it."""
     rows = []
@@ -76,6 +82,8 @@ def table(sweep: Sweep, points_dir: Path, suite: str = "heldout") -> pd.DataFram
             "train_goal_share": np.nan,
             "arena": np.nan,
             "arena_seed_std": np.nan,
+            # what the point cost, kept in the table because run folders may not outlive their machine
+            **{col: np.nan if s.get(key) is None else s[key] for col, key in COST_COLUMNS.items()},
         }
         if (d / rundir.METRICS).exists():
             row["train_goal_share"] = rundir.goal_share(rundir.read_metrics(d, ["episode", "goals", "collisions"]))
@@ -216,6 +224,14 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
             row["path ratio (all)"] = num(r.get("all_path_ratio_median", np.nan))
         if "all_success_detour" in r:  # goals on a clear straight line / behind a detour, all rooms
             row["direct / detour (all)"] = f"{num(r.all_success_direct)} / {num(r.all_success_detour)}"
+        if "fed_bytes" in r:
+            row["bytes sent per seed"] = "-" if not np.isfinite(r.fed_bytes) else f"{r.fed_bytes / 1e6:.1f} MB"
+            row["wall s"] = (
+                "-"
+                if not np.isfinite(r.wall_s)
+                else f"{r.wall_s:,.0f}"
+                + (f" (from ep. {int(r.resumed_from_episode)})" if r.get("resumed_from_episode", 0) > 0 else "")
+            )
         rows.append(row)
     out = pd.DataFrame(rows)
     if len(t) and not t.duplicated(["method", "learner", "rooms", "episodes"]).any():
