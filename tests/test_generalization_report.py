@@ -283,3 +283,25 @@ def test_copied_tables_keep_the_points_trained_elsewhere_in_the_sweeps_order(swe
     assert sorted(zip(per_seed.point, per_seed.seed)) == sorted((p.id, s) for p in (first, second) for s in (0, 1))
     assert pd.read_csv(res / "generalization_goal.csv").point.tolist() == [second.id]  # thesis rooms: no goal
     assert any("kept 1 row(s)" in s and "dropped 1" in s for s in said), said
+
+
+def test_the_copied_goal_table_checks_every_kept_point_and_an_unmatchable_copy_is_said(sweep, tmp_path):
+    """The goal table in results/ is the goal check of the merged main table, so a kept point keeps
+    its goal row even where the old goal copy cannot be matched to points (written before its
+    `point` column); a table that cannot be matched is replaced, and said."""
+    fams = {f: [0.5, 0.6] for f in FAMILIES}
+    ind, fed = _point(sweep, "iddpg-procedural"), _point(sweep, "flddpg-procedural")
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder, p in ((a, ind), (a, fed), (b, fed)):
+        _write(folder / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
+    res = tmp_path / "res"
+    report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    goal = pd.read_csv(res / "generalization_goal.csv")
+    goal.drop(columns="point").to_csv(res / "generalization_goal.csv", index=False)  # an older copy
+    per_seed = pd.read_csv(res / "generalization_per_seed.csv")
+    per_seed.drop(columns="point").to_csv(res / "generalization_per_seed.csv", index=False)
+    said = []
+    report(sweep, b, evaluate=False, copy_tables=res, echo=said.append)
+    assert pd.read_csv(res / "generalization_goal.csv").point.tolist() == [ind.id, fed.id]
+    assert pd.read_csv(res / "generalization_per_seed.csv").point.unique().tolist() == [fed.id]
+    assert any("generalization_per_seed.csv: replaced" in s and "point" in s for s in said), said

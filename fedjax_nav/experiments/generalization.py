@@ -52,7 +52,7 @@ def tables(name: str) -> tuple[str, str, str, str]:
 ROW_KEYS = (("point",), ("point", "seed"), ("point",), ("point", "net"))  # a row's identity, per table of `tables`
 
 
-def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep):
+def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep, echo: Callable[[str], None] = print):
     """`new` (a report table of the points in this folder) with the rows of the copy at `old_path`
     whose points `new` lacks but the sweep still holds: a table copied to results/ keeps the points
     trained on another machine, whose run folders are gone, instead of losing them. Rows in the
@@ -64,6 +64,9 @@ def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep):
         return new, 0, 0
     old = pd.read_csv(old_path)
     if not set(keys) <= set(old.columns):  # a copy written before the column: nothing to keep by
+        echo(
+            f"{old_path}: replaced; its rows cannot be matched to points (written before its {', '.join(keys)} column)"
+        )
         return new, 0, 0
     gone = old[~old.point.isin(set(new.point))]
     kept = gone[gone.point.isin(order)]
@@ -148,9 +151,16 @@ def report(
     copied = []
     if copy_tables is not None:
         Path(copy_tables).mkdir(parents=True, exist_ok=True)
+        kept_t = None
         for fname, df, keys in zip(files, (t, ps, g, nets), ROW_KEYS):
             dest = Path(copy_tables) / fname
-            merged, kept, dropped = with_kept_rows(df, dest, keys, sweep)
+            if fname == files[2]:  # the goal check of every kept point, from the merged table (one source)
+                merged, kept, dropped = (
+                    (gz.goal(kept_t, families_of(kept_t), sweep.goal), 0, 0) if len(kept_t) else (g, 0, 0)
+                )
+            else:
+                merged, kept, dropped = with_kept_rows(df, dest, keys, sweep, echo)
+            kept_t = merged if kept_t is None else kept_t
             copied.append(rundir.atomic_write(dest, lambda p, df=merged: df.to_csv(p, index=False)))
             if kept or dropped:
                 echo(
