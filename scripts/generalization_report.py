@@ -13,6 +13,7 @@ the median path-length ratio (columns of <name>.csv; points evaluated before the
 """
 
 import argparse
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -20,6 +21,7 @@ import pandas as pd
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report, report_name
+from fedjax_nav.rundir import RunDirError
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("out", help="the sweep's output folder (its points/ are read)")
@@ -41,16 +43,20 @@ ap.add_argument("--results", default="results", help="copy the tables here ('' =
 ap.add_argument("--figures", default="docs/img/generalization", help="copy the figures here ('' = no copy)")
 a = ap.parse_args()
 sweep = load_sweep(a.sweep)
-report(
-    sweep,
-    a.out,
-    suite=a.suite,
-    suite_attempts=a.suite_attempts,
-    arena_attempts=a.attempts,
-    evaluate=not a.no_eval,
-    copy_tables=a.results or None,
-    copy_figures=a.figures or None,
-)
+try:
+    report(
+        sweep,
+        a.out,
+        suite=a.suite,
+        suite_attempts=a.suite_attempts,
+        arena_attempts=a.attempts,
+        evaluate=not a.no_eval,
+        copy_tables=a.results or None,
+        copy_figures=a.figures or None,
+    )
+except RunDirError as e:
+    print(f"error: {e}", file=sys.stderr)
+    sys.exit(2)
 
 table = Path(a.out) / f"{report_name(sweep.name, a.suite)}.csv"
 TAIL = {

@@ -12,6 +12,7 @@ from fedjax_nav.analysis import generalization as gz
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report
+from fedjax_nav.rundir import RunDirError
 
 FAMILIES = ["cylinders", "boxes", "walls", "mixture"]
 
@@ -305,3 +306,25 @@ def test_the_copied_goal_table_checks_every_kept_point_and_an_unmatchable_copy_i
     assert pd.read_csv(res / "generalization_goal.csv").point.tolist() == [ind.id, fed.id]
     assert pd.read_csv(res / "generalization_per_seed.csv").point.unique().tolist() == [fed.id]
     assert any("generalization_per_seed.csv: replaced" in s and "point" in s for s in said), said
+
+
+def test_a_report_from_a_folder_without_points_keeps_results_and_rederives_the_goal(sweep, tmp_path):
+    """A report on an empty (or wrong) folder never wipes results/: every table keeps its rows, and
+    the goal table is derived again from the main table (how the goal tables of points trained on
+    lost machines are brought up to the current goal check)."""
+    fams = {f: [0.5, 0.6] for f in FAMILIES}
+    ind, fed = _point(sweep, "iddpg-procedural"), _point(sweep, "flddpg-procedural")
+    a = tmp_path / "a"
+    for p in (ind, fed):
+        _write(a / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
+    res = tmp_path / "res"
+    report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    before = {f.name: f.read_text() for f in res.iterdir()}
+    goal = pd.read_csv(res / "generalization_goal.csv")
+    goal.drop(columns=["point", "worst10"]).to_csv(res / "generalization_goal.csv", index=False)  # an older copy
+    with pytest.raises(RunDirError, match="no_such: no such sweep folder"):
+        report(sweep, tmp_path / "no_such", evaluate=False, copy_tables=res, echo=lambda s: None)
+    (tmp_path / "empty").mkdir()
+    report(sweep, tmp_path / "empty", evaluate=False, copy_tables=res, echo=lambda s: None)
+    after = {f.name: f.read_text() for f in res.iterdir()}
+    assert after == before

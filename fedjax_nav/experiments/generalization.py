@@ -60,9 +60,13 @@ def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep, echo: Callabl
     import pandas as pd
 
     order = {p.id: i for i, p in enumerate(sweep.points)}
-    if not Path(old_path).exists() or not len(new):
+    if not Path(old_path).exists() or Path(old_path).stat().st_size <= 1:
         return new, 0, 0
     old = pd.read_csv(old_path)
+    if not len(new):  # a folder with no finished point: the copy is what results/ holds
+        if not set(keys) <= set(old.columns):
+            return old, 0, 0
+        new = old.iloc[:0]
     if not set(keys) <= set(old.columns):  # a copy written before the column: nothing to keep by
         echo(
             f"{old_path}: replaced; its rows cannot be matched to points (written before its {', '.join(keys)} column)"
@@ -122,6 +126,8 @@ def report(
     tables and the figures (with the FLDDPG points' arena trajectories and every point's worst
     rooms of the suite) where asked."""
     out = Path(out)
+    if not out.is_dir():
+        raise rundir.RunDirError(f"{out}: no such sweep folder (fedjax-nav sweep {sweep.name} --out {out} trains it)")
     points = rundir.points_dir(out)
     if evaluate:
         for p, _ in finished(sweep, points):
@@ -161,6 +167,8 @@ def report(
             else:
                 merged, kept, dropped = with_kept_rows(df, dest, keys, sweep, echo)
             kept_t = merged if kept_t is None else kept_t
+            if not len(merged) and not dest.exists():  # e.g. no per-network rows: no empty file in results/
+                continue
             copied.append(rundir.atomic_write(dest, lambda p, df=merged: df.to_csv(p, index=False)))
             if kept or dropped:
                 echo(
