@@ -207,6 +207,7 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
         return "-" if not np.isfinite(x) else f"{x:.3f}"
 
     tail = any(c.endswith("_worst10") for c in t.columns)
+    cost = all(c in t.columns for c in COST_COLUMNS) and t[list(COST_COLUMNS)].notna().any().any()
     rows = []
     for _, r in t.iterrows():
         row = {"method": r.method.upper(), "learner": r.get("learner", "ddpg"), "rooms": r.rooms}
@@ -224,7 +225,7 @@ def readable(t: pd.DataFrame, families: list[str]) -> pd.DataFrame:
             row["path ratio (all)"] = num(r.get("all_path_ratio_median", np.nan))
         if "all_success_detour" in r:  # goals on a clear straight line / behind a detour, all rooms
             row["direct / detour (all)"] = f"{num(r.all_success_direct)} / {num(r.all_success_detour)}"
-        if "fed_bytes" in r:
+        if cost:  # summaries written before these fields: no cost columns
             row["bytes sent per seed"] = "-" if not np.isfinite(r.fed_bytes) else f"{r.fed_bytes / 1e6:.1f} MB"
             row["wall s"] = (
                 "-"
