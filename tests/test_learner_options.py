@@ -195,6 +195,26 @@ def test_an_n_step_run_is_finite_and_keeps_where_episodes_were_cut(nstep_run):
     np.testing.assert_array_equal(trunc, np.broadcast_to(want, trunc.shape))
 
 
+@pytest.mark.parametrize("learner", ["td3", "ddpg"])
+def test_the_warm_up_acts_uniformly_for_its_steps_and_then_hands_over(learner):
+    """ddpg.random_steps over 2 episodes of 4 steps: at 0 the run is bitwise the one without the
+    field (the draws have their own key); at 2 the rows of steps 0-1 are uniform draws over the box,
+    the same draws as a warm-up of all 8 steps makes, and from step 2 on the exploration acts."""
+    base = ["run.episodes=2", "run.chunk_episodes=2", "ddpg.buffer_size=64", "ddpg.train_every=1000"]
+    runs = [run_chunk(make_cfg(learner, [*base, *x])) for x in ([], ["ddpg.random_steps=0"], ["ddpg.random_steps=2"])]
+    runs.append(run_chunk(make_cfg(learner, [*base, "ddpg.random_steps=8"])))
+    tr = runs[0][0]
+    plain, zero, two, all_ = (np.asarray(r[1].buffers.action[0]).reshape(tr.n_bufs, -1, tr.writes, 2) for r in runs)
+    np.testing.assert_array_equal(zero, plain)
+    np.testing.assert_array_equal(two[:, :2], all_[:, :2])  # the same uniform draws
+    assert not np.allclose(two[:, 2:4], all_[:, 2:4])  # step 2 on: the exploration, not the draws
+    assert not np.allclose(two[:, :2], plain[:, :2])
+    warm = all_[:, :8].reshape(-1, 2)  # the 8 steps written (the buffer's other rows are empty)
+    assert np.all((warm >= [0.0, -1.0]) & (warm <= [1.0, 1.0])) and len(np.unique(warm)) == warm.size
+    # uniform over the box: 8 steps x 2 envs x 2 robots = 32 draws, loose bounds on the moments
+    assert abs(warm[:, 0].mean() - 0.5) < 0.15 and abs(warm[:, 1].mean()) < 0.3 and warm[:, 1].std() > 0.4
+
+
 # ----------------------------------------------------------------------------- n-step rows
 
 ENVS, STEPS, CAP, N, GAMMA = 3, 13, 29, 4, 0.9  # 39 rows written into 29: the ring wraps, 29 % 3 != 0
@@ -346,6 +366,7 @@ def test_n_step_one_updates_are_todays_and_n_step_updates_are_finite(name, fille
         ("td3", ["ppo.normalize_obs=true"], "ppo.normalize_obs needs learner: ppo"),
         ("sac", ["ddpg.n_step=40"], r"ddpg.n_step \(40\) x rows written per step into one buffer \(2\)"),
         ("sac", ["ddpg.n_step=0"], "ddpg.n_step"),
+        ("ppo", ["ddpg.random_steps=10"], r"ddpg.random_steps \(10\) needs an off-policy learner"),
     ],
 )
 def test_config_refuses_the_options_where_they_do_not_apply(learner, extra, match):

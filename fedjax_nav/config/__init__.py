@@ -183,6 +183,9 @@ class DDPGConfig:
     )
     epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
     epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
+    random_steps: int = _f(
+        0, lo=0, hi=2**31 - 1, traced=True, doc="off-policy warm-up: steps of uniform random actions, per environment"
+    )
     gradient_steps: int = _f(
         1,
         lo=1,

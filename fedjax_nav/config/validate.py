@@ -215,6 +215,8 @@ def _check_n_step(cfg: Config, src: str, method) -> None:
     """ddpg.n_step: an off-policy learner's, and a window of n steps of every environment writing
     into one buffer must fit in it."""
     d = cfg.ddpg
+    if d.random_steps and cfg.learner in ON_POLICY_LEARNERS:  # PPO learns from its own policy's actions
+        raise ConfigError(f"{src}: ddpg.random_steps ({d.random_steps}) needs an off-policy learner: ddpg, td3, sac")
     if d.n_step == 1:
         return
     if cfg.learner in ON_POLICY_LEARNERS:
