@@ -263,17 +263,24 @@ def test_per_net_rows_name_the_rooms_each_network_trained_on(sweep, tmp_path):
     assert len(c) == 1 and c.trained_on.iloc[0] == "cylinders+boxes+walls+mixture" and c.walls.iloc[0] == 0.0
 
 
-def test_copied_tables_keep_the_points_trained_elsewhere_in_the_sweeps_order(sweep, tmp_path):
-    """results/ holds every point reported so far: a report from a folder that lacks some points
-    (trained on another machine) keeps their rows in the copy; rows of points no longer in the
-    sweep are dropped, and both are said."""
+def _reported_twice_over(sweep, tmp_path, first, second):
+    """Folder a holds both points, folder b only `second`; a is reported into res/ (the copy the
+    tests then alter and report b over). Returns (a, b, res)."""
     fams = {f: [0.5, 0.6] for f in FAMILIES}
-    first, second = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
     a, b = tmp_path / "a", tmp_path / "b"
     for folder, p in ((a, first), (a, second), (b, second)):
         _write(folder / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
     res = tmp_path / "res"
     report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    return a, b, res
+
+
+def test_copied_tables_keep_the_points_trained_elsewhere_in_the_sweeps_order(sweep, tmp_path):
+    """results/ holds every point reported so far: a report from a folder that lacks some points
+    (trained on another machine) keeps their rows in the copy; rows of points no longer in the
+    sweep are dropped, and both are said."""
+    first, second = _point(sweep, "flddpg-thesis"), _point(sweep, "flddpg-procedural")
+    _, b, res = _reported_twice_over(sweep, tmp_path, first, second)
     stale = pd.read_csv(res / "generalization.csv")
     pd.concat([stale, stale.iloc[:1].assign(point="0123456789ab")]).to_csv(res / "generalization.csv", index=False)
     said = []
@@ -290,13 +297,8 @@ def test_the_copied_goal_table_checks_every_kept_point_and_an_unmatchable_copy_i
     """The goal table in results/ is the goal check of the merged main table, so a kept point keeps
     its goal row even where the old goal copy cannot be matched to points (written before its
     `point` column); a table that cannot be matched is replaced, and said."""
-    fams = {f: [0.5, 0.6] for f in FAMILIES}
     ind, fed = _point(sweep, "iddpg-procedural"), _point(sweep, "flddpg-procedural")
-    a, b = tmp_path / "a", tmp_path / "b"
-    for folder, p in ((a, ind), (a, fed), (b, fed)):
-        _write(folder / "points" / p.id, [0.4, 0.5], [0.2, 0.3], fams)
-    res = tmp_path / "res"
-    report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    _, b, res = _reported_twice_over(sweep, tmp_path, ind, fed)
     goal = pd.read_csv(res / "generalization_goal.csv")
     goal.drop(columns="point").to_csv(res / "generalization_goal.csv", index=False)  # an older copy
     per_seed = pd.read_csv(res / "generalization_per_seed.csv")
