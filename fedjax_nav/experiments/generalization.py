@@ -63,15 +63,15 @@ def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep, echo: Callabl
     if not Path(old_path).exists() or Path(old_path).stat().st_size <= 1:
         return new, 0, 0
     old = pd.read_csv(old_path)
-    if not len(new):  # a folder with no finished point: the copy is what results/ holds
-        if not set(keys) <= set(old.columns):
-            return old, 0, 0
-        new = old.iloc[:0]
     if not set(keys) <= set(old.columns):  # a copy written before the column: nothing to keep by
+        if not len(new):  # and nothing to replace it with
+            return old, 0, 0
         echo(
             f"{old_path}: replaced; its rows cannot be matched to points (written before its {', '.join(keys)} column)"
         )
         return new, 0, 0
+    if not len(new):  # a folder with no finished point: the copy is what results/ holds
+        new = old.iloc[:0]
     gone = old[~old.point.isin(set(new.point))]
     kept = gone[gone.point.isin(order)]
     out = pd.concat([new, kept], ignore_index=True) if len(kept) else new
@@ -156,25 +156,23 @@ def report(
         figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
     copied = []
     if copy_tables is not None:
-        Path(copy_tables).mkdir(parents=True, exist_ok=True)
-        kept_t = None
-        for fname, df, keys in zip(files, (t, ps, g, nets), ROW_KEYS):
-            dest = Path(copy_tables) / fname
-            if fname == files[2]:  # the goal check of every kept point, from the merged table (one source)
-                merged, kept, dropped = (
-                    (gz.goal(kept_t, families_of(kept_t), sweep.goal), 0, 0) if len(kept_t) else (g, 0, 0)
-                )
-            else:
-                merged, kept, dropped = with_kept_rows(df, dest, keys, sweep, echo)
-            kept_t = merged if kept_t is None else kept_t
-            if not len(merged) and not dest.exists():  # e.g. no per-network rows: no empty file in results/
-                continue
-            copied.append(rundir.atomic_write(dest, lambda p, df=merged: df.to_csv(p, index=False)))
+        res = Path(copy_tables)
+        res.mkdir(parents=True, exist_ok=True)
+
+        def keep(i: int, df):
+            merged, kept, dropped = with_kept_rows(df, res / files[i], ROW_KEYS[i], sweep, echo)
             if kept or dropped:
                 echo(
-                    f"{dest}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
+                    f"{res / files[i]}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
                     + (f"; dropped {dropped} of points no longer in the sweep" if dropped else "")
                 )
+            return merged
+
+        t_all = keep(0, t)  # the goal check of every kept point derives from the merged table (one source)
+        g_all = gz.goal(t_all, families_of(t_all), sweep.goal) if len(t_all) else g
+        for fname, df in zip(files, (t_all, keep(1, ps), g_all, keep(3, nets))):
+            if len(df) or (res / fname).exists():  # e.g. no per-network rows: no empty file in results/
+                copied.append(rundir.atomic_write(res / fname, lambda p, df=df: df.to_csv(p, index=False)))
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
