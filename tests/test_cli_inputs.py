@@ -123,7 +123,20 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
     cmd += ["--episodes", "1000", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
     # without PYTHONUNBUFFERED, as a user's shell has it: the start line must be flushed by the CLI
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PYTHONUNBUFFERED")} | {"JAX_PLATFORMS": "cpu"}
-    p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+    # a terminal's Ctrl-C reaches a process whose SIGINT is at its default; a suite launched in the
+    # background of a script inherits SIGINT ignored (POSIX), which Python then keeps ignored
+    def default_sigint():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    p = subprocess.Popen(
+        [str(c) for c in cmd],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=default_sigint,
+    )
     try:
         assert p.stdout.readline().startswith("training ")
         time.sleep(wait)
@@ -146,3 +159,25 @@ def test_ctrl_c_while_a_run_starts_is_one_line_and_130(tmp_path, signals):
     # how to resume; either way one line, 130, no traceback
     assert rc == 130 and len(lines) == 1 and "Traceback" not in err, (rc, err[-2000:])
     assert "interrupted" in lines[0], lines
+
+
+def test_a_run_started_with_ctrl_c_ignored_keeps_ignoring_it():
+    """A script's background job starts with SIGINT ignored (POSIX); the run's deferred handler
+    installed itself over that, so such a job stopped on a Ctrl-C that Python would have ignored."""
+    import signal
+
+    from fedjax_nav.training.run import _DeferredInterrupt
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        guard = _DeferredInterrupt()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        guard.restore()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        guard = _DeferredInterrupt()
+        assert signal.getsignal(signal.SIGINT) == guard._on_sigint
+        guard.restore()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, before)

@@ -197,12 +197,15 @@ def _restore(run: _Run, states):
 
 class _DeferredInterrupt:
     """While installed, the first Ctrl-C only sets `caught` (the chunk finishes, a checkpoint is
-    saved, then `Interrupted`); a second one restores the previous handler and stops at once."""
+    saved, then `Interrupted`); a second one restores the previous handler and stops at once. A
+    process started with Ctrl-C ignored (a script's background job, POSIX) keeps ignoring it, as
+    Python itself does."""
 
     def __init__(self):
         self.caught = False
         self.previous = signal.getsignal(signal.SIGINT)
-        signal.signal(signal.SIGINT, self._on_sigint)
+        if self.previous is not signal.SIG_IGN:
+            signal.signal(signal.SIGINT, self._on_sigint)
 
     def _on_sigint(self, signum, frame):
         if self.caught:
