@@ -27,6 +27,16 @@ import yaml  # noqa: E402
 from fedjax_nav import worlds  # noqa: E402
 from fedjax_nav.env import NavEnv, lidar, make_params, nearest_distance  # noqa: E402
 
+
+def sigint_at_default() -> None:
+    """`preexec_fn` of the subprocesses a test Ctrl-C's: SIGINT at its default, as a terminal starts
+    a command. A suite launched as a script's background job inherits SIGINT ignored (POSIX), and a
+    run keeps ignoring it (docs/reliability.md), so without this those tests fail there."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 # Common padded shape of the hand-built worlds: (segments, circles, starts, goals).
 TINY_SHAPE = (8, 2, 4, 2)
 # Episode length of the env fixtures (short, so truncation is reached in a few steps).

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import sigint_at_default
 
 from fedjax_nav import cli
 from fedjax_nav.config import load_config
@@ -97,7 +98,12 @@ def start_until(env, out: Path, ready, *args, poll: float = 0.02) -> subprocess.
     """Start `fedjax-nav train` and return once `ready(out)` holds, the process still running.
     Reads metrics.csv on every poll (atomic writes: never half-written)."""
     proc = subprocess.Popen(
-        cmd("train", *args, "--quiet"), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        cmd("train", *args, "--quiet"),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=sigint_at_default,
     )
     deadline = time.time() + TIMEOUT
     while not ready(out):

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import sigint_at_default
 
 from fedjax_nav import cli
 from fedjax_nav.config.sweepfile import SweepError, load_sweep
@@ -124,18 +125,13 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
     # without PYTHONUNBUFFERED, as a user's shell has it: the start line must be flushed by the CLI
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PYTHONUNBUFFERED")} | {"JAX_PLATFORMS": "cpu"}
 
-    # a terminal's Ctrl-C reaches a process whose SIGINT is at its default; a suite launched in the
-    # background of a script inherits SIGINT ignored (POSIX), which Python then keeps ignored
-    def default_sigint():
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-
     p = subprocess.Popen(
         [str(c) for c in cmd],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         env=env,
-        preexec_fn=default_sigint,
+        preexec_fn=sigint_at_default,
     )
     try:
         assert p.stdout.readline().startswith("training ")
