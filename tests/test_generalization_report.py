@@ -209,6 +209,15 @@ def test_probe_legend_names_what_tells_points_apart():
     assert distinct_parts([a]) == {a: a} and distinct_parts([a, a]) == {a: a}
 
 
+def test_figures_give_up_to_twenty_points_a_colour_each():
+    """The bars and probe curves took matplotlib's 10-colour cycle: a sweep of 24 points drew
+    pairs of points in one colour."""
+    from fedjax_nav.analysis.plots import distinct_colors
+
+    for n in (1, 10, 11, 18, 20):
+        assert len(set(distinct_colors(n))) == n, n
+
+
 def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
     """The heldout report's tables are kept when the same points are reported on dense-heldout:
     the second suite's files carry its name."""

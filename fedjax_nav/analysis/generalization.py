@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
-from fedjax_nav.analysis.plots import probe_per_episode
+from fedjax_nav.analysis.plots import distinct_colors, probe_per_episode
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.config.sweepfile import Sweep
 
@@ -295,6 +295,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict,
     )
     width = 0.8 / max(len(t), 1)
     same = t.duplicated(["method", "rooms", "episodes"], keep=False) if len(t) else []
+    colors = distinct_colors(len(t))
     for i, (_, r) in enumerate(t.iterrows()):
         x = np.arange(len(groups)) + (i - (len(t) - 1) / 2) * width
         y = np.array([r.get(f, np.nan) for f in families] + [r.arena], float)
@@ -303,7 +304,7 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict,
         err = np.nan_to_num(np.stack([y - lo, hi - y]).clip(min=0))
         label = f"{r.method.upper()}, {r['rooms']}" + ("" if episodes is not None else f", {r.episodes} ep.")
         label = f"{r.method.upper()}: {r['label']}" if same.iloc[i] else label  # points that differ in another field
-        ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label)
+        ax.bar(x, np.nan_to_num(y), width, yerr=err, capsize=2, label=label, color=colors[i])
     for key, ls in (("family", "--"), ("arena", ":")):
         if key in target:
             ax.axhline(target[key], ls=ls, c="gray", lw=0.8)
@@ -359,11 +360,12 @@ def probe_figure(curves: pd.DataFrame, path: str | Path) -> Path:
     methods = list(dict.fromkeys(longest.method))
     sources = list(dict.fromkeys(longest[by]))
     short = distinct_parts(sources) if by == "label" else {}
+    palette = distinct_colors(len(sources))  # one colour per room source (or point) in every panel
     fig, axes = plt.subplots(1, len(methods), figsize=(max(4.2 * len(methods), 6.4), 3.6), sharey=True, squeeze=False)
     for ax, m in zip(axes[0], methods):
         for src, c in longest[longest.method == m].groupby(by, sort=False):
             name = src.split(" (")[0] if by == "rooms" else short[src]
-            color = f"C{sources.index(src) % 10}"  # one colour per room source in every panel
+            color = palette[sources.index(src)]
             (line,) = ax.plot(c.episode + 1, c.probe, label=name, c=color)
             ax.fill_between(
                 c.episode + 1, c.probe - c.probe_seed_std, c.probe + c.probe_seed_std, alpha=0.2, color=color

@@ -12,6 +12,12 @@ from fedjax_nav import rundir
 from fedjax_nav.rundir import save_figure  # noqa: F401  (figures are saved atomically, by the run directory's owner)
 
 
+def distinct_colors(n: int) -> list:
+    """`n` colours, none twice up to 20 (tab10 up to 10 curves, tab20 up to 20; past 20 they cycle)."""
+    cmap = matplotlib.colormaps["tab10" if n <= 10 else "tab20"]
+    return [cmap(i % cmap.N) for i in range(n)]
+
+
 def moving_average(x, n: int = 10) -> np.ndarray:
     """Simple moving average over the last n values (fewer at the start), as the thesis plots."""
     x = np.asarray(x, float)
@@ -60,8 +66,7 @@ def learning_curves(runs, path: str | Path, title: str = "", window: int = 10) -
     rows = -(-n // 3) if below else 0
     fig = Figure(figsize=(10, 3.6 + 0.2 * rows), layout="constrained")
     axes = fig.subplots(1, 2)
-    cmap = matplotlib.colormaps["tab10" if n <= 10 else "tab20"]  # no colour twice up to 20 runs
-    colors = {label: cmap(i % cmap.N) for i, label in enumerate(runs)}
+    colors = dict(zip(runs, distinct_colors(n)))
     for label, df in runs.items():
         for ax, metric, name in zip(axes, ["success", "reward"], ["success proportion", "mean reward per step"]):
             ax.set_xlabel("episode")
