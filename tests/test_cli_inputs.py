@@ -124,7 +124,6 @@ def _interrupted_train(tmp_path, signals: int, wait: float):
     cmd += ["--episodes", "1000", "--set", "env.episode_length=64", "--set", "run.chunk_episodes=1", "--quiet"]
     # without PYTHONUNBUFFERED, as a user's shell has it: the start line must be flushed by the CLI
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PYTHONUNBUFFERED")} | {"JAX_PLATFORMS": "cpu"}
-
     p = subprocess.Popen(
         [str(c) for c in cmd],
         stdout=subprocess.PIPE,
