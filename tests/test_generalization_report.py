@@ -184,6 +184,40 @@ def test_the_probe_curve_averages_the_probe_episodes_over_robots_and_seeds(sweep
     assert gz.probe_figure(c, tmp_path / "probe.png").stat().st_size > 0
 
 
+def _probe_metrics(folder, probe):
+    """metrics.csv of a point whose held-out probe ran at episodes 4 and 9 with success `probe`."""
+    rows = [
+        {"episode": ep, "seed": 0, "robot": 0, "goals": 1, "collisions": 0, "reached_goal": 1}
+        | {"eval_success": probe if ep % 5 == 4 else np.nan}
+        for ep in range(10)
+    ]
+    pd.DataFrame(rows).to_csv(folder / "metrics.csv", index=False)
+
+
+def test_figures_of_a_report_from_a_partial_folder_draw_every_point_results_keeps(sweep, tmp_path, monkeypatch):
+    """A report from a folder holding only the newest point (the older ones trained on a machine
+    whose run folders are gone) draws its bars and probe curves from the merged tables in results/,
+    so the figures copied to docs keep the older points; the probe curves are kept in results/."""
+    first, second = _point(sweep, "iddpg-procedural"), _point(sweep, "flddpg-procedural")
+    a, b, res = tmp_path / "a", tmp_path / "b", tmp_path / "res"
+    for folder, p, probe in ((a, first, 0.25), (a, second, 0.5), (b, second, 0.75)):
+        _write(folder / "points" / p.id, [0.4, 0.5], [0.2, 0.3], {f: [probe, probe] for f in FAMILIES})
+        _probe_metrics(folder / "points" / p.id, probe)
+    report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
+    drawn = {}
+    monkeypatch.setattr(gz, "figure", lambda t, fams, path, goal, e: drawn.setdefault("bars", t) is None or path)
+    monkeypatch.setattr(gz, "probe_figure", lambda c, path: drawn.setdefault("probe", c) is None or path)
+    report(sweep, b, evaluate=False, copy_tables=res, echo=lambda s: None)
+    assert drawn["bars"].set_index("point").walls.to_dict() == {first.id: 0.25, second.id: 0.75}
+    assert drawn["probe"].groupby("point").probe.max().to_dict() == {first.id: 0.25, second.id: 0.75}
+    kept = pd.read_csv(res / "generalization_probe.csv")
+    assert sorted(zip(kept.point, kept.episode)) == sorted((p.id, e) for p in (first, second) for e in (4, 9))
+    assert pd.read_csv(b / "generalization_probe.csv").point.unique().tolist() == [second.id]  # the folder's own
+    drawn.clear()
+    report(sweep, b, evaluate=False, echo=lambda s: None)  # no copy to results/: the folder's points only
+    assert drawn["bars"].point.tolist() == [second.id] and drawn["probe"].point.unique().tolist() == [second.id]
+
+
 def test_a_point_evaluated_with_the_same_attempts_is_not_evaluated_again(tmp_path):
     from fedjax_nav.evaluation.suite import kept_suite
 

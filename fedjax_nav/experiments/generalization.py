@@ -11,7 +11,10 @@ Report folder (the sweep's --out), named after the sweep (`generalization` here)
 report of another sweep over the same points folder (generalization_levers) writes beside it.
 Each point's suite evaluation gets its worst rooms drawn (RUN/eval/<suite>/worst_rooms.png,
 `evaluation.worst_rooms`), copied with the figures as <name>_worst_rooms_<point label>.png.
-The tables copied to results/ keep the rows of the sweep's points the folder lacks (`with_kept_rows`).
+The tables copied to results/ (the probe curves with them) keep the rows of the sweep's points the
+folder lacks (`with_kept_rows`), and the bar and probe figures are then drawn from those merged
+tables: a report from a folder holding only the newest points neither drops the older points'
+rows nor redraws their figures without them.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ def tables(name: str) -> tuple[str, str, str, str]:
 
 
 ROW_KEYS = (("point",), ("point", "seed"), ("point",), ("point", "net"))  # a row's identity, per table of `tables`
+PROBE_KEYS = ("point", "episode")  # a row's identity in <name>_probe.csv
 
 
 def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep, echo: Callable[[str], None] = print):
@@ -147,32 +151,39 @@ def report(
     md += ["mean [95% bootstrap interval over training seeds].", ""]
     md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
-    figs = (
-        [gz.figure(t, fams, out / f"{name}_{e}.png", sweep.goal, e) for e in sorted(set(t.episodes))] if len(t) else []
-    )
     curves = gz.probe_curves(sweep, points)
     if len(curves):
         rundir.atomic_write(out / f"{name}_probe.csv", lambda p: curves.to_csv(p, index=False))
-        figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
     copied = []
     if copy_tables is not None:
         res = Path(copy_tables)
         res.mkdir(parents=True, exist_ok=True)
 
-        def keep(i: int, df):
-            merged, kept, dropped = with_kept_rows(df, res / files[i], ROW_KEYS[i], sweep, echo)
+        def keep(df, fname: str, keys: tuple):
+            merged, kept, dropped = with_kept_rows(df, res / fname, keys, sweep, echo)
             if kept or dropped:
                 echo(
-                    f"{res / files[i]}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
+                    f"{res / fname}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
                     + (f"; dropped {dropped} of points no longer in the sweep" if dropped else "")
                 )
+            if len(merged) or (res / fname).exists():  # e.g. no per-network rows: no empty file in results/
+                copied.append(rundir.atomic_write(res / fname, lambda p: merged.to_csv(p, index=False)))
             return merged
 
-        t_all = keep(0, t)  # the goal check of every kept point derives from the merged table (one source)
+        t_all = keep(t, files[0], ROW_KEYS[0])  # the goal check and figures of every kept point derive from it
+        keep(ps, files[1], ROW_KEYS[1])
         g_all = gz.goal(t_all, families_of(t_all), sweep.goal) if len(t_all) else g
-        for fname, df in zip(files, (t_all, keep(1, ps), g_all, keep(3, nets))):
-            if len(df) or (res / fname).exists():  # e.g. no per-network rows: no empty file in results/
-                copied.append(rundir.atomic_write(res / fname, lambda p, df=df: df.to_csv(p, index=False)))
+        if len(g_all) or (res / files[2]).exists():
+            copied.append(rundir.atomic_write(res / files[2], lambda p: g_all.to_csv(p, index=False)))
+        keep(nets, files[3], ROW_KEYS[3])
+        curves = keep(curves, f"{name}_probe.csv", PROBE_KEYS)
+    else:
+        t_all = t
+    fams_all = families_of(t_all)
+    episodes = sorted(set(t_all.episodes)) if len(t_all) else []
+    figs = [gz.figure(t_all, fams_all, out / f"{name}_{e}.png", sweep.goal, e) for e in episodes]
+    if len(curves):
+        figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
