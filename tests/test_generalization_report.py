@@ -243,6 +243,36 @@ def test_probe_legend_names_what_tells_points_apart():
     assert distinct_parts([a]) == {a: a} and distinct_parts([a, a]) == {a: a}
 
 
+def test_probe_curves_are_named_the_same_in_every_methods_panel():
+    """An 18-point sweep (3 learners x 2 fleets x 3 methods) named its curves by whole labels,
+    method and room tuple included: 18 legend entries. A curve is named by its fleet and what else
+    tells points apart, the method being its panel: 6 names, each in every panel, every budget of a
+    curve under one name (the longest is drawn)."""
+    from fedjax_nav.analysis.generalization import curve_names
+
+    het = "heterogeneous (cylinders, boxes, walls, mixture, mixture)"
+    fams = {het: "('cylinders', 'boxes', 'walls', 'mixture', 'mixture')", "procedural (mixture)": "('mixture',)"}
+    rows = [
+        {"point": f"{cfg}{m}{rooms[:3]}{ep}", "method": m, "rooms": rooms, "budget": ep}
+        | {"label": f"config={cfg}, env.room_families={fams[rooms]}, method={m}, run.episodes={ep}"}
+        for cfg in ("td3", "ppo-gru", "ddpg")
+        for rooms in fams
+        for m in ("flddpg", "iddpg", "snddpg")
+        for ep in (30, 300)
+    ]
+    c = pd.DataFrame(rows)
+    names = curve_names(c)
+    assert sorted(set(names)) == sorted(
+        f"{f}, config={cfg}" for f in ("heterogeneous", "procedural") for cfg in ("td3", "ppo-gru", "ddpg")
+    )
+    assert (c.assign(n=names).groupby("n").method.nunique() == 3).all()
+    one = c[c.label.str.startswith("config=td3")]  # nothing but the fleet tells points apart
+    assert set(curve_names(one)) == {"heterogeneous", "procedural"}
+    two = one.assign(rooms=one.rooms.str.replace("procedural (mixture)", "procedural (walls)"), point=one.point + "w")
+    two = pd.concat([one[one.rooms == "procedural (mixture)"], two[two.rooms == "procedural (walls)"]])
+    assert set(curve_names(two)) == {"procedural (mixture)", "procedural (walls)"}  # two fleets share the word
+
+
 def test_figures_give_up_to_twenty_points_a_colour_each():
     """The bars and probe curves took matplotlib's 10-colour cycle: a sweep of 24 points drew
     pairs of points in one colour."""
@@ -250,6 +280,38 @@ def test_figures_give_up_to_twenty_points_a_colour_each():
 
     for n in (1, 10, 11, 18, 20):
         assert len(set(distinct_colors(n))) == n, n
+
+
+def test_bars_of_several_learners_get_a_panel_each_with_one_legend(tmp_path, monkeypatch):
+    """23 points of four learners drew 23 bars per family with a 23-line legend of whole labels: the
+    bars now stand one panel per learner (what tells points apart besides method and fleet), each
+    named by method and fleet, one legend entry per name across the panels."""
+    import matplotlib.figure
+
+    het = "heterogeneous (cylinders, boxes, walls, mixture, mixture)"
+    fams = {het: "('cylinders', 'boxes', 'walls', 'mixture', 'mixture')", "procedural (mixture)": "('mixture',)"}
+    rows = [
+        {"point": f"{cfg}{m}{rooms[:3]}", "method": m, "rooms": rooms, "episodes": 30, "arena": 0.5}
+        | {"arena_seed_std": 0.1, "label": f"config={cfg}, env.room_families={fams[rooms]}, method={m}"}
+        | {f: 0.8 for f in FAMILIES}
+        for cfg in ("td3", "ppo")
+        for rooms in fams
+        for m in ("flddpg", "iddpg")
+    ]
+    seen = {}
+    real = matplotlib.figure.Figure.legend
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "legend",
+        lambda fig, h, labels, **kw: (
+            seen.update(panels=[a.get_title(loc="left") for a in fig.axes], names=list(labels))
+            or real(fig, h, labels, **kw)
+        ),
+    )
+    assert gz.figure(pd.DataFrame(rows), FAMILIES, tmp_path / "bars.png", {"family": 0.95}, 30).stat().st_size > 0
+    assert seen["panels"] == ["config=td3", "config=ppo"]
+    want = [f"{m}, {f}" for f in ("heterogeneous", "procedural") for m in ("FLDDPG", "IDDPG")]
+    assert seen["names"] == want
 
 
 def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
