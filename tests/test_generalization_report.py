@@ -312,6 +312,12 @@ def test_bars_of_several_learners_get_a_panel_each_with_one_legend(tmp_path, mon
     assert seen["panels"] == ["config=td3", "config=ppo"]
     want = [f"{m}, {f}" for f in ("heterogeneous", "procedural") for m in ("FLDDPG", "IDDPG")]
     assert seen["names"] == want
+    # a sweep of levers (one point each): one panel, what tells a point apart in its bar's name
+    gz.figure(pd.DataFrame(rows[3:5]), FAMILIES, tmp_path / "levers.png", {"family": 0.95}, 30)
+    assert seen["panels"] == [""] and seen["names"] == [
+        "IDDPG, procedural, config=td3",
+        "FLDDPG, heterogeneous, config=ppo",
+    ]
 
 
 def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):

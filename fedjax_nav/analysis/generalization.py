@@ -281,7 +281,8 @@ def goal(t: pd.DataFrame, families: list[str], target: dict) -> pd.DataFrame:
 def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict, episodes: int | None = None) -> Path:
     """Grouped bars: for each held-out family and the arena, one bar per trained point (method x
     fleet; the points of `episodes` only, when given; one panel per value of whatever else tells
-    points apart, e.g. the learner: `point_names`), height the mean over seeds, whiskers the 95%
+    points apart, e.g. the learner (`point_names`), where each panel holds two bars or more, else
+    that value in the bar's name), height the mean over seeds, whiskers the 95%
     bootstrap interval over training seeds (families) or +- the seed std (arena); the sweep's goal
     (`target`) for the families dashed, for the arena dotted. A bar keeps its colour in every panel."""
     import matplotlib
@@ -292,6 +293,8 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict,
     t = t if episodes is None else t[t.episodes == episodes]
     fleet, other = point_names(t) if len(t) else (t.point, t.point)
     bar = t.method.str.upper() + ", " + fleet + ("" if episodes is not None else ", " + t.episodes.astype(str) + " ep.")
+    if (other.value_counts() < 2).any():  # a panel of one bar (a sweep of configs or levers): one panel, named bars
+        bar, other = bar + other.map(lambda o: f", {o}" if o else ""), other.map(lambda o: "")
     bars, panels = list(dict.fromkeys(bar)), list(dict.fromkeys(other)) or [""]
     groups = [*families, "arena"]
     n = max((other == o).sum() for o in panels) if len(t) else 1  # bars per group in the fullest panel
@@ -326,7 +329,8 @@ def figure(t: pd.DataFrame, families: list[str], path: str | Path, target: dict,
     handles = {}  # each bar's name once, from whichever panel holds it
     for ax in axes[:, 0]:
         handles.update({lb: h for h, lb in zip(*ax.get_legend_handles_labels()) if lb not in handles})
-    fig.legend(handles.values(), handles.keys(), loc="outside lower center", fontsize=7, ncol=2)  # never over bars
+    ncol = 1 if max(map(len, handles)) > 50 else 2  # long names one per line, inside the figure's width
+    fig.legend(handles.values(), handles.keys(), loc="outside lower center", fontsize=7, ncol=ncol)  # never over bars
     out = rundir.save_figure(fig, path)
     plt.close(fig)
     return out
