@@ -282,6 +282,7 @@ def test_a_killed_sweep_resumes_without_recomputing_finished_points(tiny, tmp_pa
 
     _, stats = run_sweep(sweep, out, budget=budget, progress=False, echo=lambda s: None)
     assert stats["skipped"] == 3 and stats["groups"][0]["jobs"] == 3
+    assert stats["groups"][0]["traces"] == 1, "a resumed batch traced its chunk again"
     assert stamps == {p.id: (out / "points" / p.id / "summary.json").stat().st_mtime_ns for p in done}
     resumed = [
         json.loads((out / "points" / p.id / "summary.json").read_text())["resumed_from_episode"]

@@ -242,12 +242,15 @@ def _empty(x) -> bool:
 
 def _storable(tree):
     """Zero-size leaves (a feed-forward PPO's empty GRU state) as one zero element: orbax refuses
-    to save arrays of size 0. `_unstorable` gives them back the template's shape."""
+    to save arrays of size 0. `_unstorable` gives them back as the template's own leaves."""
     return jax.tree.map(lambda x: np.zeros((1,), x.dtype) if _empty(x) else x, tree)
 
 
 def _unstorable(tree, template):
-    return jax.tree.map(lambda x, t: np.zeros(t.shape, t.dtype) if _empty(t) else x, tree, template)
+    """The template's leaf for each zero-size one (nothing to restore), placed as the run placed
+    it: a numpy stand-in there made the first chunk after a resume on several devices compile
+    again once its outputs came back sharded (two traces per resumed PPO sweep, measured)."""
+    return jax.tree.map(lambda x, t: t if _empty(t) else x, tree, template)
 
 
 _CONFIG = "config_json"  # key in the episode_history item: the run's config, as UTF-8 JSON bytes
