@@ -322,13 +322,15 @@ def test_bars_of_several_learners_get_a_panel_each_with_one_legend(tmp_path, mon
 
 def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
     """The heldout report's tables are kept when the same points are reported on dense-heldout:
-    the second suite's files carry its name."""
+    the second suite's files carry its name; the probe ran in training, so its curves are one file
+    named after the sweep, whichever suite is reported."""
     import shutil
 
     from fedjax_nav.experiments.generalization import report_name
 
     p = _point(sweep, "flddpg-procedural")
     _write(tmp_path / "points" / p.id, [0.7, 0.7], [1.0, 0.9], {f: [0.9, 0.8] for f in FAMILIES})
+    _probe_metrics(tmp_path / "points" / p.id, 0.5)
     dense = tmp_path / "points" / p.id / "eval" / "dense-heldout"
     shutil.copytree(tmp_path / "points" / p.id / "eval" / "heldout", dense)
     fam = pd.read_csv(dense / "suite_families.csv")
@@ -343,6 +345,7 @@ def test_a_report_on_a_second_suite_writes_beside_the_first(sweep, tmp_path):
     assert "maze" in d and "walls" not in d and d.maze[0] == pytest.approx(0.1)
     assert (tmp_path / "generalization_dense-heldout.md").exists()
     assert (tmp_path / "res" / "generalization_dense-heldout_goal.csv").exists()
+    assert sorted(f.name for f in (tmp_path / "res").glob("*probe*")) == ["generalization_probe.csv"]
 
 
 def test_per_net_rows_name_the_rooms_each_network_trained_on(sweep, tmp_path):

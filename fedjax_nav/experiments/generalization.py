@@ -7,7 +7,8 @@ figures.
 
 Report folder (the sweep's --out), named after the sweep (`generalization` here): <name>.csv,
 <name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget,
-<name>_probe.csv / .png (the held-out probe during training); so the
+<sweep>_probe.csv / .png (the held-out probe during training, named after the sweep whatever the
+suite: one file for the curves of every report); so the
 report of another sweep over the same points folder (generalization_levers) writes beside it.
 Each point's suite evaluation gets its worst rooms drawn (RUN/eval/<suite>/worst_rooms.png,
 `evaluation.worst_rooms`), copied with the figures as <name>_worst_rooms_<point label>.png.
@@ -53,7 +54,7 @@ def tables(name: str) -> tuple[str, str, str, str]:
 
 
 ROW_KEYS = (("point",), ("point", "seed"), ("point",), ("point", "net"))  # a row's identity, per table of `tables`
-PROBE_KEYS = ("point", "episode")  # a row's identity in <name>_probe.csv
+PROBE_KEYS = ("point", "episode")  # a row's identity in <sweep>_probe.csv
 
 
 def with_kept_rows(new, old_path: Path, keys: tuple, sweep: Sweep, echo: Callable[[str], None] = print):
@@ -151,9 +152,9 @@ def report(
     md += ["mean [95% bootstrap interval over training seeds].", ""]
     md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
-    curves = gz.probe_curves(sweep, points)
+    curves, probe = gz.probe_curves(sweep, points), f"{sweep.name}_probe"  # the probe ran in training: no suite
     if len(curves):
-        rundir.atomic_write(out / f"{name}_probe.csv", lambda p: curves.to_csv(p, index=False))
+        rundir.atomic_write(out / f"{probe}.csv", lambda p: curves.to_csv(p, index=False))
     copied = []
     if copy_tables is not None:
         res = Path(copy_tables)
@@ -176,14 +177,14 @@ def report(
         if len(g_all) or (res / files[2]).exists():
             copied.append(rundir.atomic_write(res / files[2], lambda p: g_all.to_csv(p, index=False)))
         keep(nets, files[3], ROW_KEYS[3])
-        curves = keep(curves, f"{name}_probe.csv", PROBE_KEYS)
+        curves = keep(curves, f"{probe}.csv", PROBE_KEYS)
     else:
         t_all = t
     fams_all = families_of(t_all)
     episodes = sorted(set(t_all.episodes)) if len(t_all) else []
     figs = [gz.figure(t_all, fams_all, out / f"{name}_{e}.png", sweep.goal, e) for e in episodes]
     if len(curves):
-        figs.append(gz.probe_figure(curves, out / f"{name}_probe.png"))
+        figs.append(gz.probe_figure(curves, out / f"{probe}.png"))
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
