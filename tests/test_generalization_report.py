@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from fedjax_nav.analysis import generalization as gz
+from fedjax_nav.analysis import generalization_figures as gf
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report
@@ -181,7 +182,7 @@ def test_the_probe_curve_averages_the_probe_episodes_over_robots_and_seeds(sweep
     np.testing.assert_allclose(c.probe, [0.3, 0.3])  # robots 0.2 on average, seeds 0.2 apart
     np.testing.assert_allclose(c.probe_seed_std, [0.1, 0.1])
     np.testing.assert_allclose(c.train, [0.4, 0.4])
-    assert gz.probe_figure(c, tmp_path / "probe.png").stat().st_size > 0
+    assert gf.probe_figure(c, tmp_path / "probe.png").stat().st_size > 0
 
 
 def _probe_metrics(folder, probe):
@@ -205,8 +206,8 @@ def test_figures_of_a_report_from_a_partial_folder_draw_every_point_results_keep
         _probe_metrics(folder / "points" / p.id, probe)
     report(sweep, a, evaluate=False, copy_tables=res, echo=lambda s: None)
     drawn = {}
-    monkeypatch.setattr(gz, "figure", lambda t, fams, path, goal, e: drawn.setdefault("bars", t) is None or path)
-    monkeypatch.setattr(gz, "probe_figure", lambda c, path: drawn.setdefault("probe", c) is None or path)
+    monkeypatch.setattr(gf, "figure", lambda t, fams, path, goal, e: drawn.setdefault("bars", t) is None or path)
+    monkeypatch.setattr(gf, "probe_figure", lambda c, path: drawn.setdefault("probe", c) is None or path)
     report(sweep, b, evaluate=False, copy_tables=res, echo=lambda s: None)
     assert drawn["bars"].set_index("point").walls.to_dict() == {first.id: 0.25, second.id: 0.75}
     assert drawn["probe"].groupby("point").probe.max().to_dict() == {first.id: 0.25, second.id: 0.75}
@@ -231,7 +232,7 @@ def test_a_point_evaluated_with_the_same_attempts_is_not_evaluated_again(tmp_pat
 
 
 def test_probe_legend_names_what_tells_points_apart():
-    from fedjax_nav.analysis.generalization import distinct_parts
+    from fedjax_nav.analysis.generalization_figures import distinct_parts
 
     a = "method=snddpg, env.room_families=('cylinders', 'boxes'), ppo.gamma=0.99, env.reward_collision=-10.0"
     b = "method=snddpg, env.room_families=('cylinders', 'boxes'), ppo.gamma=0.999, env.reward_collision=-10.0"
@@ -248,7 +249,7 @@ def test_probe_curves_are_named_the_same_in_every_methods_panel():
     method and room tuple included: 18 legend entries. A curve is named by its fleet and what else
     tells points apart, the method being its panel: 6 names, each in every panel, every budget of a
     curve under one name (the longest is drawn)."""
-    from fedjax_nav.analysis.generalization import curve_names
+    from fedjax_nav.analysis.generalization_figures import curve_names
 
     het = "heterogeneous (cylinders, boxes, walls, mixture, mixture)"
     fams = {het: "('cylinders', 'boxes', 'walls', 'mixture', 'mixture')", "procedural (mixture)": "('mixture',)"}
@@ -308,12 +309,12 @@ def test_bars_of_several_learners_get_a_panel_each_with_one_legend(tmp_path, mon
             or real(fig, h, labels, **kw)
         ),
     )
-    assert gz.figure(pd.DataFrame(rows), FAMILIES, tmp_path / "bars.png", {"family": 0.95}, 30).stat().st_size > 0
+    assert gf.figure(pd.DataFrame(rows), FAMILIES, tmp_path / "bars.png", {"family": 0.95}, 30).stat().st_size > 0
     assert seen["panels"] == ["config=td3", "config=ppo"]
     want = [f"{m}, {f}" for f in ("heterogeneous", "procedural") for m in ("FLDDPG", "IDDPG")]
     assert seen["names"] == want
     # a sweep of levers (one point each): one panel, what tells a point apart in its bar's name
-    gz.figure(pd.DataFrame(rows[3:5]), FAMILIES, tmp_path / "levers.png", {"family": 0.95}, 30)
+    gf.figure(pd.DataFrame(rows[3:5]), FAMILIES, tmp_path / "levers.png", {"family": 0.95}, 30)
     assert seen["panels"] == [""] and seen["names"] == [
         "IDDPG, procedural, config=td3",
         "FLDDPG, heterogeneous, config=ppo",

@@ -26,6 +26,7 @@ from typing import Callable
 
 from fedjax_nav import rundir
 from fedjax_nav.analysis import generalization as gz
+from fedjax_nav.analysis import generalization_figures as gf
 from fedjax_nav.analysis.sweeps import finished
 from fedjax_nav.config.sweepfile import Sweep
 from fedjax_nav.experiments.thesis_report import md_table
@@ -182,9 +183,9 @@ def report(
         t_all = t
     fams_all = families_of(t_all)
     episodes = sorted(set(t_all.episodes)) if len(t_all) else []
-    figs = [gz.figure(t_all, fams_all, out / f"{name}_{e}.png", sweep.goal, e) for e in episodes]
+    figs = [gf.figure(t_all, fams_all, out / f"{name}_{e}.png", sweep.goal, e) for e in episodes]
     if len(curves):
-        figs.append(gz.probe_figure(curves, out / f"{probe}.png"))
+        figs.append(gf.probe_figure(curves, out / f"{probe}.png"))
     if copy_figures is not None:
         figures = {f.name: f for f in figs}
         for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
