@@ -161,6 +161,11 @@ def report(
         res = Path(copy_tables)
         res.mkdir(parents=True, exist_ok=True)
 
+        def write(df, fname: str):
+            if len(df) or (res / fname).exists():  # e.g. no per-network rows: no empty file in results/
+                copied.append(rundir.atomic_write(res / fname, lambda p: df.to_csv(p, index=False)))
+            return df
+
         def keep(df, fname: str, keys: tuple):
             merged, kept, dropped = with_kept_rows(df, res / fname, keys, sweep, echo)
             if kept or dropped:
@@ -168,15 +173,11 @@ def report(
                     f"{res / fname}: kept {kept} row(s) of points not in {points} (trained elsewhere)"
                     + (f"; dropped {dropped} of points no longer in the sweep" if dropped else "")
                 )
-            if len(merged) or (res / fname).exists():  # e.g. no per-network rows: no empty file in results/
-                copied.append(rundir.atomic_write(res / fname, lambda p: merged.to_csv(p, index=False)))
-            return merged
+            return write(merged, fname)
 
         t_all = keep(t, files[0], ROW_KEYS[0])  # the goal check and figures of every kept point derive from it
         keep(ps, files[1], ROW_KEYS[1])
-        g_all = gz.goal(t_all, families_of(t_all), sweep.goal) if len(t_all) else g
-        if len(g_all) or (res / files[2]).exists():
-            copied.append(rundir.atomic_write(res / files[2], lambda p: g_all.to_csv(p, index=False)))
+        write(gz.goal(t_all, families_of(t_all), sweep.goal) if len(t_all) else g, files[2])
         keep(nets, files[3], ROW_KEYS[3])
         curves = keep(curves, f"{probe}.csv", PROBE_KEYS)
     else:
