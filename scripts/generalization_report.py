@@ -9,7 +9,9 @@ docs/img/generalization/.
 
 After the report it prints the tail of the held-out suite per point (docs/generalization.md, "Tail
 metrics"): over all rooms the success, the worst 10 % of rooms, the collision and time-out rates and
-the median path-length ratio (columns of <name>.csv; points evaluated before the tail: "-").
+the median path-length ratio (columns of <name>.csv; points evaluated before the tail: "-"); then,
+with the `stats` extra (rliable), each point's mean, interquartile mean (IQM) and probability of
+improvement over the other methods (<name>_iqm.csv; docs/generalization.md).
 """
 
 import argparse
@@ -18,6 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from fedjax_nav.analysis.generalization import ROBUST_NOTE, robust_readable
 from fedjax_nav.config.sweepfile import load_sweep
 from fedjax_nav.configs import SWEEP_DIR
 from fedjax_nav.experiments.generalization import report, report_name
@@ -72,3 +75,8 @@ if len(t):
     shown = t.reindex(columns=[*names, "method", "rooms", "episodes", *TAIL]).rename(columns=TAIL)
     print(f"held-out suite {a.suite}, all rooms (the tail):")
     print(shown.to_string(index=False, float_format=lambda x: f"{x:.3f}", na_rep="-"))
+
+iqm = Path(a.out) / f"{report_name(sweep.name, a.suite)}_iqm.csv"
+if iqm.exists() and iqm.stat().st_size > 1:
+    print(f"\nheld-out suite {a.suite}: {ROBUST_NOTE}")
+    print(robust_readable(pd.read_csv(iqm)).to_string(index=False))

@@ -445,3 +445,77 @@ def test_a_report_from_a_folder_without_points_keeps_results_and_rederives_the_g
     report(sweep, tmp_path / "empty", evaluate=False, copy_tables=res, echo=lambda s: None)
     after = {f.name: f.read_text() for f in res.iterdir()}
     assert after == before
+
+
+def _seed_rows(point, method, label, matrix, episodes=300):
+    """per_seed rows of one point: matrix[seed][family] over FAMILIES."""
+    base = {"point": point, "label": label, "method": method, "learner": "ppo", "rooms": "r", "episodes": episodes}
+    return [base | {"seed": s} | dict(zip(FAMILIES, row)) for s, row in enumerate(matrix)]
+
+
+def test_iqm_and_probability_of_improvement_match_an_independent_computation():
+    """rliable's IQM is scipy's 25 % trimmed mean of the flat seeds x families matrix (an outlying seed
+    moves it less than the mean); the probability of improvement is, per family, the share of seed
+    pairs where the first point is above (ties half), averaged over families; only points that differ
+    in nothing but the method are compared."""
+    pytest.importorskip("rliable")
+    from scipy.stats import trim_mean
+
+    rng = np.random.default_rng(0)
+    fl = rng.uniform(0.6, 1.0, (4, 4))
+    fl[0] = 0.0  # one failed seed
+    ind = rng.uniform(0.5, 0.9, (4, 4))
+    ind[1, 2] = fl[2, 2]  # a tie
+    other = rng.uniform(0.0, 1.0, (4, 4))
+    ps = pd.DataFrame(
+        _seed_rows("a", "flddpg", "env.x=1, method=flddpg, run.episodes=300", fl)
+        + _seed_rows("b", "iddpg", "env.x=1, method=iddpg, run.episodes=300", ind)
+        + _seed_rows("c", "iddpg", "env.x=1, method=iddpg, run.episodes=30", other, episodes=30)
+    )
+    r = gz.robust(ps, FAMILIES).set_index("point")
+    assert r.loc["a", "iqm"] == pytest.approx(trim_mean(fl.ravel(), 0.25))
+    assert r.loc["a", "iqm"] == pytest.approx(np.sort(fl.ravel())[4:12].mean())  # the middle 8 of 16
+    assert r.loc["a", "mean"] == pytest.approx(fl.mean()) and r.loc["a", "iqm"] > r.loc["a", "mean"]
+
+    def prob(x, y):
+        return np.mean([np.mean([(a > b) + 0.5 * (a == b) for a in x[:, f] for b in y[:, f]]) for f in range(4)])
+
+    assert r.loc["a", "p_over_iddpg"] == pytest.approx(prob(fl, ind))
+    assert r.loc["b", "p_over_flddpg"] == pytest.approx(prob(ind, fl))
+    assert r.loc["a", "p_over_iddpg"] + r.loc["b", "p_over_flddpg"] == pytest.approx(1.0)
+    assert np.isnan(r.loc["c", "p_over_flddpg"])  # 30 episodes: no FLDDPG point with its other settings
+    assert np.isnan(r.loc["a", "p_over_flddpg"])  # never against its own method
+    shown = gz.robust_readable(r.reset_index())
+    assert "P(> IDDPG)" in shown.columns and shown.loc[0, "P(> FLDDPG)"] == "-"
+
+
+def test_the_report_writes_the_iqm_table_beside_the_others(sweep, tmp_path):
+    pytest.importorskip("rliable")
+    fl, ind = _point(sweep, "flddpg-procedural"), _point(sweep, "iddpg-procedural")
+    _write(tmp_path / "points" / fl.id, [0.7, 0.7], [1.0, 0.9], {f: [0.9, 0.8] for f in FAMILIES})
+    _write(tmp_path / "points" / ind.id, [0.7, 0.7], [1.0, 0.9], {f: [0.6, 0.5] for f in FAMILIES})
+    report(sweep, tmp_path, evaluate=False, copy_tables=tmp_path / "res", echo=lambda s: None)
+    r = pd.read_csv(tmp_path / "generalization_iqm.csv").set_index("method")
+    assert r.loc["flddpg", "p_over_iddpg"] == 1.0 and r.loc["iddpg", "p_over_flddpg"] == 0.0
+    assert r.loc["flddpg", "iqm"] == pytest.approx(0.85)
+    assert (tmp_path / "res" / "generalization_iqm.csv").exists()
+    assert "## IQM and probability of improvement" in (tmp_path / "generalization.md").read_text()
+
+
+def test_without_rliable_the_report_says_which_extra_to_install_and_writes_the_rest(sweep, tmp_path, monkeypatch):
+    import re
+    import sys
+    from pathlib import Path
+
+    import tomllib
+
+    monkeypatch.setitem(sys.modules, "rliable", None)  # `import rliable` raises ImportError
+    fl = _point(sweep, "flddpg-procedural")
+    _write(tmp_path / "points" / fl.id, [0.7, 0.7], [1.0, 0.9], {f: [0.9, 0.8] for f in FAMILIES})
+    lines = []
+    report(sweep, tmp_path, evaluate=False, echo=lines.append)
+    assert (tmp_path / "generalization.csv").exists() and not (tmp_path / "generalization_iqm.csv").exists()
+    said = [s for s in lines if "rliable" in s]
+    extra = re.search(r"fedjax_nav\[(\w+)\]", said[0]).group(1)
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    assert any(r.startswith("rliable") for r in pyproject["project"]["optional-dependencies"][extra])

@@ -10,6 +10,7 @@ eval/<suite>/suite_families.csv and suite_episodes.csv. Nothing here trains or e
     readable(table, families)           the same as strings (mean +- std, [seed CI]) for docs
     goal(table, families)               the issue's goal per procedurally trained point
     probe_curves(sweep, points_dir)     the held-out probe during training (run.eval_every)
+    robust(per_seed, families)          IQM and probability of improvement (rliable) per point
 
 Their figures are drawn by `fedjax_nav.analysis.generalization_figures`.
 
@@ -23,6 +24,7 @@ episodes whose goal needs a detour, `<family>_success_direct`, `<family>_success
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -293,3 +295,66 @@ def probe_curves(sweep: Sweep, points_dir: Path) -> pd.DataFrame:
             c.assign(point=p.id, label=p.label, method=p.cfg.method, rooms=rooms(p.cfg), budget=p.cfg.run.episodes)
         )
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
+
+
+ROBUST_NOTE = (
+    "Over the score matrix training seeds x held-out families (rliable's runs x tasks): the mean, the "
+    "interquartile mean (IQM, the mean of the middle 50 % of the scores) and P(> M), the probability that a "
+    "seed of this point scores above a seed of method M trained with the same other settings, per family "
+    "(Mann-Whitney U / (n m)), averaged over families (Agarwal et al. 2021)."
+)
+
+
+def _other_settings(r) -> str:
+    """What a point shares with the points it is compared with: its learner, rooms and episodes and,
+    where the sweep's label names the method (`method=...`), the rest of the label; a point of another
+    method is compared only when it is the one point of its method with these settings."""
+    rest = re.sub(r"(, )?\bmethod=\w+", "", str(r.label)).strip(", ") if "method=" in str(r.label) else ""
+    return f"{r.learner}|{r.rooms}|{r.episodes}|{rest}"
+
+
+def robust(ps: pd.DataFrame, families: list[str]) -> pd.DataFrame:
+    """The aggregates of Agarwal et al. (2021), computed by their library rliable, per point from its
+    score matrix seeds x held-out families (rliable's runs x tasks; `per_seed`'s family columns): the
+    mean, the interquartile mean (`iqm`: the mean of the middle 50 % of the scores, less moved by one
+    seed or family) and, against each other method trained with the same other settings
+    (`_other_settings`), the probability of improvement `p_over_<method>`: per family, the chance
+    that a seed of this point scores above a seed of the other (Mann-Whitney U / (n m), ties half),
+    averaged over families. Points without every family's scores are left out. rliable is an extra
+    (`pip install "fedjax_nav[stats]"`): ImportError without it."""
+    from rliable import metrics
+
+    cols = [f for f in families if f in ps.columns]
+    scores, rows = {}, []
+    for point, g in ps.groupby("point", sort=False):
+        x = g.sort_values("seed")[cols].to_numpy(np.float64)
+        if not cols or not np.isfinite(x).all():
+            continue
+        scores[point] = x
+        r = g.iloc[0]
+        row = {k: r.get(k, "") for k in ("point", "label", "method", "rooms", "episodes")}
+        row["learner"] = r.get("learner", "ddpg")  # tables written before the column: the thesis's learner
+        rows.append(row | {"seeds": len(x), "mean": float(x.mean()), "iqm": float(metrics.aggregate_iqm(x))})
+    out = pd.DataFrame(rows)
+    if not len(out):
+        return out
+    out["_group"] = out.apply(_other_settings, axis=1)
+    for m in sorted(set(out.method)):
+        col = f"p_over_{m}"
+        out[col] = np.nan
+        for i, r in out.iterrows():
+            other = out[(out._group == r._group) & (out.method == m) & (out.point != r.point)]
+            if r.method != m and len(other) == 1:
+                y = scores[other.point.iloc[0]]
+                out.loc[i, col] = float(metrics.probability_of_improvement(scores[r.point], y))
+    return out.drop(columns="_group").dropna(axis=1, how="all")  # a method with no partner: no column
+
+
+def robust_readable(r: pd.DataFrame) -> pd.DataFrame:
+    """`robust` for docs: three decimals, '-' where a comparison has no partner, methods upper case."""
+    named = r.duplicated(["method", "learner", "rooms", "episodes"]).any()  # only the label tells points apart
+    out = r.drop(columns=["point"] if named else ["point", "label"])
+    out["method"] = out.method.str.upper()
+    for c in ["mean", "iqm", *[c for c in out.columns if c.startswith("p_over_")]]:
+        out[c] = out[c].map(lambda v: "-" if not np.isfinite(v) else f"{v:.3f}")
+    return out.rename(columns={c: f"P(> {c[7:].upper()})" for c in out.columns if c.startswith("p_over_")})

@@ -6,7 +6,8 @@ figures.
     report(load_sweep("configs/sweeps/generalization.yaml"), "runs/sweeps/generalization")
 
 Report folder (the sweep's --out), named after the sweep (`generalization` here): <name>.csv,
-<name>_per_seed.csv, <name>_goal.csv, <name>.md, <name>_<episodes>.png per training budget,
+<name>_per_seed.csv, <name>_goal.csv, <name>_iqm.csv (IQM and probability of improvement,
+`analysis.generalization.robust`; needs the `stats` extra), <name>.md, <name>_<episodes>.png per training budget,
 <sweep>_probe.csv / .png (the held-out probe during training, named after the sweep whatever the
 suite: one file for the curves of every report); so the
 report of another sweep over the same points folder (generalization_levers) writes beside it.
@@ -117,6 +118,15 @@ def families_of(t) -> list[str]:
     return [c[: -len("_ci_seeds_low")] for c in t.columns if c.endswith("_ci_seeds_low") and not c.startswith("all_")]
 
 
+def _robust(ps, fams: list[str], echo: Callable[[str], None]):
+    """`gz.robust` of the per-seed table, or None with one line when rliable is not installed."""
+    try:
+        return gz.robust(ps, fams) if len(ps) else None
+    except ImportError:
+        echo('no IQM / probability of improvement: rliable is not installed (pip install "fedjax_nav[stats]")')
+        return None
+
+
 def report(
     sweep: Sweep,
     out: str | Path,
@@ -152,6 +162,11 @@ def report(
     md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
     md += ["mean [95% bootstrap interval over training seeds].", ""]
     md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
+    rb = _robust(ps, fams, echo)
+    if rb is not None:
+        rundir.atomic_write(out / f"{name}_iqm.csv", lambda p: rb.to_csv(p, index=False))
+        md += ["## IQM and probability of improvement", "", gz.ROBUST_NOTE, ""]
+        md += [md_table(gz.robust_readable(rb)) if len(rb) else "(no point with every family evaluated)", ""]
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
     curves, probe = gz.probe_curves(sweep, points), f"{sweep.name}_probe"  # the probe ran in training: no suite
     if len(curves):
@@ -176,7 +191,10 @@ def report(
             return write(merged, fname)
 
         t_all = keep(t, files[0], ROW_KEYS[0])  # the goal check and figures of every kept point derive from it
-        keep(ps, files[1], ROW_KEYS[1])
+        ps_all = keep(ps, files[1], ROW_KEYS[1])
+        rb_all = _robust(ps_all, families_of(t_all), lambda line: None) if rb is not None else None
+        if rb_all is not None:  # from the per-seed rows of every kept point, as the goal check below
+            write(rb_all, f"{name}_iqm.csv")
         write(gz.goal(t_all, families_of(t_all), sweep.goal) if len(t_all) else g, files[2])
         keep(nets, files[3], ROW_KEYS[3])
         curves = keep(curves, f"{probe}.csv", PROBE_KEYS)
