@@ -52,3 +52,18 @@ def test_dataclass_fields_are_listed_with_their_comments(site):
     v_max = html[html.index('id="fedjax_nav.env.nav.EnvParams.v_max"') :]
     v_max = re.sub(r"<[^>]+>", " ", v_max[: v_max.index('id="fedjax_nav.env.nav.EnvParams.omega_max"')])
     assert "m/s" in v_max  # the field's comment (`v_max: ... # m/s`) is its description
+
+
+def test_the_reference_overview_lists_every_module_with_its_docstrings_first_sentence(site):
+    """reference/index.md (docs/gen_ref_pages.py) heads the API reference: a row per module page,
+    its purpose read from the module's docstring, so that a changed docstring changes the row."""
+    html = (site / "reference" / "index.html").read_text()
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+    pages = {p.parent.relative_to(site / "reference").as_posix() for p in (site / "reference").rglob("index.html")}
+    linked = set(re.findall(r'href="(fedjax_nav(?:/[^"#]*)?)/"', html))
+    assert linked == pages - {"."}, "every module page is a row of the overview"
+    # the first sentence, not the first line: this one wraps in the source
+    assert "The navigation task for one robot: pure reset / step over flax.struct state and params." in text
+    assert "PPO (Schulman et al. 2017) for one agent as pure functions" in text  # 'et al.' ends no sentence
+    nav = (site / "index.html").read_text()
+    assert 'href="reference/"' in nav  # the overview is the section's own page
