@@ -519,3 +519,20 @@ def test_without_rliable_the_report_says_which_extra_to_install_and_writes_the_r
     extra = re.search(r"fedjax_nav\[(\w+)\]", said[0]).group(1)
     pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
     assert any(r.startswith("rliable") for r in pyproject["project"]["optional-dependencies"][extra])
+
+
+def test_the_committed_iqm_table_and_the_guides_numbers_derive_from_the_committed_per_seed_table():
+    """results/generalization_1e8_iqm.csv is `robust` of results/generalization_1e8_per_seed.csv, and
+    the federated question's table in docs/generalization.md shows its 9.8e7 rows' IQM and
+    probabilities as they are (a new report or a changed statistic cannot leave the docs behind)."""
+    pytest.importorskip("rliable")
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    r = gz.robust(pd.read_csv(root / "results" / "generalization_1e8_per_seed.csv"), FAMILIES)
+    pd.testing.assert_frame_equal(r, pd.read_csv(root / "results" / "generalization_1e8_iqm.csv"), check_dtype=False)
+    guide = (root / "docs" / "generalization.md").read_text()
+    order = ("flddpg", "iddpg", "snddpg")
+    for _, p in r[r.episodes == 300].iterrows():
+        cells = [f"{p['iqm']:.3f}"] + ["-" if m == p.method else f"{p[f'p_over_{m}']:.3f}" for m in order]
+        assert f"| {p['mean']:.3f} [" in guide and "| " + " | ".join(cells) + " |" in guide, p.point

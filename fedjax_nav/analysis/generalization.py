@@ -332,8 +332,9 @@ def robust(ps: pd.DataFrame, families: list[str]) -> pd.DataFrame:
             continue
         scores[point] = x
         r = g.iloc[0]
-        row = {k: r.get(k, "") for k in ("point", "label", "method", "rooms", "episodes")}
+        row = {"point": r.point, "label": r.get("label", ""), "method": r.method}
         row["learner"] = r.get("learner", "ddpg")  # tables written before the column: the thesis's learner
+        row |= {"rooms": r.rooms, "episodes": r.episodes}
         rows.append(row | {"seeds": len(x), "mean": float(x.mean()), "iqm": float(metrics.aggregate_iqm(x))})
     out = pd.DataFrame(rows)
     if not len(out):
