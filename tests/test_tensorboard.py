@@ -99,3 +99,33 @@ def test_without_the_flag_nothing_is_written(tmp_path):
     out = tmp_path / "run"
     assert cli.main(["train", "--config", "thesis/flddpg", "--out", str(out), "--quiet", *TINY]) == 0
     assert not (out / "tensorboard").exists()
+
+
+def test_a_resumed_log_counts_the_episodes_done_before_in_the_success_metric(tmp_path):
+    """After `train --resume`, the episodes already done (`remember`) are not written again but
+    count towards `hparam/success_last`, which then equals summary.json's success_last over the
+    whole run (`rundir.success_last_per_seed`); the x-axis unit follows the fleet's size."""
+    from fedjax_nav import rundir
+    from fedjax_nav.config import load_config
+    from fedjax_nav.training.tblog import TensorBoardLog
+
+    cfg = load_config("thesis/flddpg", ["env.episode_length=16", "env.envs_per_robot=2", "run.episodes=40"])
+    rng = np.random.default_rng(0)
+    df = pd.DataFrame(
+        [
+            {"episode": e, "seed": s, "robot": r, "reached_goal": bool(rng.random() < e / 40), "reward": rng.random()}
+            for e in range(40)
+            for s in range(2)
+            for r in range(5)
+        ]
+    )
+    log = TensorBoardLog(tmp_path, cfg)
+    log.remember(df[df.episode < 30])
+    log.episodes(df[df.episode >= 30])
+    log.close()
+    s = read_scalars(tmp_path / "tensorboard")
+    unit = 16 * 5 * 2  # steps x robots x environments per robot
+    assert sorted(s["mean/reward"]) == [unit * (e + 1) for e in range(30, 40)]  # only the new episodes
+    expected = float(rundir.success_last_per_seed(df).mean())
+    assert expected != float(rundir.success_last_per_seed(df[df.episode >= 30]).mean())  # the window matters
+    np.testing.assert_allclose(s["hparam/success_last"][unit * 40], expected, atol=1e-6)
