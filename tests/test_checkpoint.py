@@ -273,6 +273,27 @@ def test_resume_falls_back_from_a_damaged_checkpoint_or_starts_where_asked(refer
     assert_same_run(reference, out)
 
 
+def test_a_short_run_of_any_length_follows_with_its_chunk_and_resumes_bitwise(reference, env, tmp_path):
+    """`--episodes N` that the file's chunk (4) does not divide: the chunk becomes the largest
+    divisor of N (2), the checkpoints a multiple of it (4, unchanged); extending that run with
+    `--resume --episodes 16` gives the reference's numbers bitwise (chunking changes no number).
+    An extension the kept chunk does not divide is refused in one line."""
+    path = tmp_path / "chunk4.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "run": {**TINY["run"], "chunk_episodes": 4, "checkpoint_every": 4}}))
+    out = tmp_path / "run"
+    r = run_cli(env, "train", "--config", path, "--episodes", 2, "--out", out, "--quiet")
+    assert r.returncode == 0, r.stderr[-3000:]
+    saved = load_config(out / "config.yaml").run
+    assert (saved.episodes, saved.chunk_episodes, saved.checkpoint_every) == (2, 2, 4)
+    r = run_cli(env, "train", "--resume", out, "--episodes", 7, "--allow-config-change", "--quiet")
+    assert r.returncode == 2 and "--episodes 7" in r.stderr and "chunks of 2 episodes" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = run_cli(env, "train", "--resume", out, "--episodes", EPISODES, "--allow-config-change", "--quiet")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert steps(out) == [8, 12, 16]
+    assert_same_run(reference, out)
+
+
 def test_resuming_a_finished_run_rewrites_the_same_results(reference, env, tmp_path):
     """A kill after the last checkpoint but before the result files: --resume finishes them."""
     out = tmp_path / "run"

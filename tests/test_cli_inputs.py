@@ -176,3 +176,10 @@ def test_a_run_started_with_ctrl_c_ignored_keeps_ignoring_it():
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_train_without_a_config_is_refused_naming_the_preset_and_the_list(tmp_path):
+    """A bare `train --out X` trained the whole thesis preset, silently (docs/reliability.md)."""
+    line = one_error_line(["train", "--out", tmp_path / "x", "--quiet"])
+    assert "--config thesis/flddpg" in line and "fedjax-nav configs" in line and "125 episodes" in line, line
+    assert not (tmp_path / "x").exists()

@@ -95,6 +95,47 @@ def test_inconsistent_fields_are_rejected_naming_them(data, keys):
         assert k in str(e.value), str(e.value)
 
 
+@pytest.mark.parametrize(
+    "overrides, sizes",
+    [
+        (["run.episodes=2"], (2, 2, 24)),  # the smoke run: chunk 5 -> 2, checkpoints 25 -> 24
+        (["run.episodes=7"], (7, 1, 25)),  # a prime: chunks of one episode
+        (["run.episodes=12"], (12, 4, 24)),
+        (["run.episodes=4", "run.checkpoint_every=0"], (4, 4, 0)),  # 0 (only at the end) stays
+        (["run.chunk_episodes=1"], (125, 1, 25)),
+        (["run.episodes=10", "run.chunk_episodes=2"], (10, 2, 24)),
+        (["run.episodes=125"], (125, 5, 25)),  # a config that passes is unchanged
+    ],
+)
+def test_the_chunk_and_checkpoint_sizes_follow_the_command_line(overrides, sizes):
+    r = load_config(ROOT / "configs" / "thesis" / "iddpg.yaml", overrides).run
+    assert (r.episodes, r.chunk_episodes, r.checkpoint_every) == sizes
+
+
+@pytest.mark.parametrize(
+    "overrides, flag",
+    [
+        (["run.episodes=2", "run.chunk_episodes=3"], "--set run.chunk_episodes=3"),
+        (["run.chunk_episodes=2"], "--set run.chunk_episodes=2"),  # 125 episodes
+        (["run.checkpoint_every=7"], "--set run.checkpoint_every=7"),
+        (["run.episodes=2", "run.checkpoint_every=3"], "--set run.checkpoint_every=3"),
+    ],
+)
+def test_sizes_set_on_the_command_line_that_conflict_are_refused_naming_the_flag(overrides, flag):
+    with pytest.raises(ConfigError) as e:
+        load_config(ROOT / "configs" / "thesis" / "iddpg.yaml", overrides)
+    msg = str(e.value)
+    assert msg.startswith(flag + ":") and "\n" not in msg, msg
+
+
+def test_the_defaults_are_the_thesis_flddpg_preset():
+    # `fedjax-nav train` without --config names this preset as what the defaults train
+    from fedjax_nav.cli.commands import DEFAULT_PRESET
+    from fedjax_nav.config import Config, diff
+
+    assert diff(Config(), load_config(DEFAULT_PRESET)) == []
+
+
 @pytest.mark.parametrize("method", ["iddpg", "seddpg", "snddpg"])
 def test_the_federated_period_does_not_constrain_methods_without_a_federated_step(method):
     # `--episodes 1` with the thesis presets (E_update = 2) is a smoke run, not an error, when no

@@ -81,6 +81,22 @@ def test_export_onnx_without_onnx_names_the_extra_to_install(tmp_path, monkeypat
     assert not (tmp_path / "out").exists()
 
 
+def test_the_onnx_extra_brings_a_runtime_for_what_it_exports(pyproject):
+    """`pip install "fedjax_nav[onnx]"` (and its earlier name `export`) can run an exported policy,
+    not only write it: onnx and onnxruntime, with the bounds the dev extra tests."""
+    reqs = requirements(pyproject)
+    dev = {r.name: r.specifier for r in reqs["dev"]}
+    for extra in ("onnx", "export"):
+        got = {r.name: r.specifier for r in reqs[extra]}
+        assert got == {name: dev[name] for name in ("onnx", "onnxruntime")}, extra
+
+
+def test_the_changelog_has_an_unreleased_section_and_the_version(pyproject):
+    text = (ROOT / "CHANGELOG.md").read_text()
+    assert "keepachangelog.com" in text and "## [Unreleased]" in text
+    assert f"## [{fedjax_nav.__version__}]" in text  # the version the package says it is
+
+
 def _metrics(episodes: int, seeds: int = 2, robots: int = 3) -> pd.DataFrame:
     rows = [
         {"seed": s, "episode": e, "robot": r, "reached_goal": (s + r + e) % 2 == 0, "reward": 0.1 * (s + r)}

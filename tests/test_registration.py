@@ -95,6 +95,35 @@ def test_make_without_importing_fedjax_nav_first():
     assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
 
 
+@pytest.mark.parametrize("order", ["fedjax_nav first", "gymnasium first"])
+def test_import_fedjax_nav_registers_the_env_without_importing_gymnasium_or_jax(order):
+    """`import fedjax_nav` alone registers "fedjax_nav/Nav-v0" (before: only the submodule
+    fedjax_nav.env.gym_env did), in either import order, and `gymnasium.register_envs(fedjax_nav)`
+    works; the package import itself loads neither gymnasium nor jax nor numpy (`fedjax-nav
+    --help` stays instant), and the registered entry points are strings until an env is made."""
+    pytest.importorskip("gymnasium")
+    imports = "import fedjax_nav" if order == "fedjax_nav first" else "import gymnasium, fedjax_nav"
+    code = f"""
+        import sys
+        {imports}
+        heavy = sorted(m for m in ("gymnasium", "jax", "numpy") if m in sys.modules)
+        assert heavy == ({"[]" if order == "fedjax_nav first" else '["gymnasium", "numpy"]'}), heavy
+        import gymnasium
+        gymnasium.register_envs(fedjax_nav)
+        spec = gymnasium.spec("fedjax_nav/Nav-v0")
+        assert spec.entry_point == "fedjax_nav.env.gym_env:NavGymEnv", spec
+        assert spec.vector_entry_point == "fedjax_nav.env.gym_vector:NavVectorEnv", spec
+        assert "jax" not in sys.modules
+        env = gymnasium.make("fedjax_nav/Nav-v0", world="train-0", episode_length=4)
+        assert type(env.unwrapped).__name__ == "NavGymEnv"
+        import fedjax_nav.env.gym_env as ge  # registering again changes nothing
+        assert gymnasium.spec(ge.ENV_ID) is spec
+        print("OK")
+        """
+    out = fresh_python(code, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
+
+
 def test_make_vec_builds_the_vmap_vector_env(gym):
     gymnasium, gym_env = gym
     from fedjax_nav.env.gym_vector import NavVectorEnv

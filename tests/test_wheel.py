@@ -114,6 +114,11 @@ def test_the_installed_package_is_the_wheel_not_the_checkout(installed):
         assert str(installed["site"]) in line and str(ROOT) not in line
 
 
+def test_the_wheel_ships_the_type_marker(installed):
+    """PEP 561: without `py.typed` in the installed package, mypy reads every fedjax_nav name as Any."""
+    assert (installed["site"] / "fedjax_nav" / "py.typed").is_file()
+
+
 def test_configs_train_reproduce_and_evaluate_from_an_empty_directory(installed):
     r = run(installed, "configs")
     assert r.returncode == 0 and "thesis/flddpg" in r.stdout and "tau" in r.stdout, r.stderr[-2000:]

@@ -84,7 +84,8 @@ def _tensorboard_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tensorboard",
         action="store_true",
-        help="also write per-episode scalars for TensorBoard (RUN/tensorboard/; = --set run.tensorboard=true)",
+        help="also write per-episode scalars (x-axis: agent-steps) and the hyperparameters for TensorBoard "
+        "(RUN/tensorboard/; = --set run.tensorboard=true)",
     )
 
 
@@ -141,7 +142,13 @@ def _device_flags(p: argparse.ArgumentParser) -> None:
 def add_train(sub) -> None:
     """`train`: one config, all robots and seeds in one program; resume, devices, processes."""
     p = sub.add_parser("train", help="train a method (all robots and seeds in one program)")
-    p.add_argument("--config", required=False, default=None, help="YAML config (e.g. configs/thesis/flddpg.yaml)")
+    p.add_argument(
+        "--config",
+        required=False,
+        default=None,
+        help="a shipped config name or a YAML file, e.g. thesis/flddpg (`fedjax-nav configs` lists them); "
+        "without it, --set or --episodes train the defaults (= thesis/flddpg)",
+    )
     p.add_argument(
         "--seeds",
         type=int,
@@ -149,7 +156,13 @@ def add_train(sub) -> None:
         help="number of seeds, trained together (vmap); a multiple of the cores spreads "
         "them over one device per core unless --devices is given",
     )
-    p.add_argument("--episodes", type=int, default=None, help="shortcut for --set run.episodes=N")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="shortcut for --set run.episodes=N; any N: run.chunk_episodes and run.checkpoint_every follow it "
+        "unless set (docs/reliability.md)",
+    )
     p.add_argument(
         "--out",
         default=None,

@@ -131,9 +131,39 @@ def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (
     for name in TOP_LEVEL:
         if name in data:
             kwargs[name] = _coerce(data[name], top[name], f"{where(name)}: {name}")
-    cfg = Config(**kwargs)
+    cfg = fit_run_sizes(Config(**kwargs), overridden)
     check(cfg, f"{src} (with --set)" if overridden else src)
     return cfg
+
+
+def fit_run_sizes(cfg: Config, overridden: Collection[str]) -> Config:
+    """The run's chunk and checkpoint sizes after a command line that changed `run.episodes` or
+    `run.chunk_episodes` (`--episodes N`, `--set`): a size it did not set follows (docs/reliability.md,
+    "Chunks and checkpoints"): `run.chunk_episodes` becomes the largest divisor of `run.episodes`
+    not above the configured chunk (one compiled program, as before), `run.checkpoint_every` the
+    largest multiple of the chunk not above the configured one (at least one chunk; 0 stays 0).
+    A size the command line set itself and that conflicts is refused in one line naming it; a
+    file whose own sizes conflict is refused by `check`. A config that passes `check` unchanged
+    is returned unchanged: no shipped config or sweep point moves."""
+    r, given = cfg.run, set(overridden)
+    chunk, every = r.chunk_episodes, r.checkpoint_every
+    if r.episodes % chunk and "run.chunk_episodes" in given:
+        raise ConfigError(
+            f"--set run.chunk_episodes={chunk}: run.episodes ({r.episodes}) must be a multiple of it; "
+            f"give a divisor of {r.episodes}, or leave it unset (it then follows run.episodes)"
+        )
+    if r.episodes % chunk and "run.episodes" in given:
+        chunk = next(d for d in range(min(chunk, r.episodes), 0, -1) if r.episodes % d == 0)
+    if every % chunk and "run.checkpoint_every" in given:
+        raise ConfigError(
+            f"--set run.checkpoint_every={every}: must be 0 or a multiple of run.chunk_episodes ({chunk}); "
+            "leave it unset to have it follow the chunk"
+        )
+    if every % chunk and given & {"run.episodes", "run.chunk_episodes"}:
+        every = max(chunk, every // chunk * chunk)
+    if (chunk, every) == (r.chunk_episodes, r.checkpoint_every):
+        return cfg
+    return dataclasses.replace(cfg, run=dataclasses.replace(r, chunk_episodes=chunk, checkpoint_every=every))
 
 
 def check(cfg: Config, src: str = "<config>") -> None:

@@ -24,17 +24,21 @@ the host once. For many environments at once use the vmap vector env (`gym_vecto
   process raises a RuntimeError at once (gymnasium's `AsyncVectorEnv` forks by default, after
   building one env in the parent): use `vector_kwargs={"context": "spawn"}` or the vmap env.
 
-Importing this module registers `"fedjax_nav/Nav-v0"` (`ENV_ID`) with gymnasium, with the
-vmap `NavVectorEnv` as its vector entry point; keyword arguments of `gymnasium.make` (and
-`make_vec`) go to `NavGymEnv` (and `NavVectorEnv`):
+`import fedjax_nav` registers `"fedjax_nav/Nav-v0"` (`ENV_ID`) with gymnasium, with the vmap
+`NavVectorEnv` as its vector entry point (importing neither gymnasium nor jax: see
+`fedjax_nav.register_gymnasium`); keyword arguments of `gymnasium.make` (and `make_vec`) go to
+`NavGymEnv` (and `NavVectorEnv`):
 
     import gymnasium
-    import fedjax_nav.env.gym_env  # noqa: F401  (registers fedjax_nav/Nav-v0)
+    import fedjax_nav
+
+    gymnasium.register_envs(fedjax_nav)  # gymnasium's convention (the import registered it)
 
     env = gymnasium.make("fedjax_nav/Nav-v0", world="train-2", episode_length=512)
     envs = gymnasium.make_vec("fedjax_nav/Nav-v0", num_envs=64, placement="random")
 
-or, without importing fedjax_nav first: `gymnasium.make("fedjax_nav.env.gym_env:fedjax_nav/Nav-v0")`.
+or, without importing fedjax_nav first: `gymnasium.make("fedjax_nav:fedjax_nav/Nav-v0")` (gymnasium
+imports the module named before the colon).
 No `max_episode_steps` is registered: the env truncates at its own `episode_length`.
 """
 
@@ -50,10 +54,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fedjax_nav import GYM_ENV_ID, GYM_VECTOR_ENTRY_POINT, register_gymnasium
 from fedjax_nav.env import gym_task
 
-ENV_ID = "fedjax_nav/Nav-v0"
-VECTOR_ENTRY_POINT = "fedjax_nav.env.gym_vector:NavVectorEnv"
+# the id and entry points are the package's (`import fedjax_nav` registers them, gymnasium unimported)
+ENV_ID = GYM_ENV_ID
+VECTOR_ENTRY_POINT = GYM_VECTOR_ENTRY_POINT
 
 # ----------------------------------------------------------------------------- fork guard
 #
@@ -226,11 +232,8 @@ class NavGymEnv(gymnasium.Env):
 def register() -> None:
     """Register `NavGymEnv` with gymnasium as `ENV_ID`, with `NavVectorEnv` as its vector entry
     point (done on import; a second call is a no-op). No `max_episode_steps`: the env's own
-    `episode_length` truncates."""
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(
-            id=ENV_ID, entry_point="fedjax_nav.env.gym_env:NavGymEnv", vector_entry_point=VECTOR_ENTRY_POINT
-        )
+    `episode_length` truncates. `import fedjax_nav` has already done it (`fedjax_nav.register_gymnasium`)."""
+    register_gymnasium()
 
 
 register()

@@ -244,7 +244,9 @@ def _loop(run: _Run, chunk, states, hp: HParams, metrics, start: int, all_df, pr
         unit="ep",
         disable=not (progress and run.writer),
     )
-    tb = TensorBoardLog(run.out) if cfg.run.tensorboard and run.writer else None
+    tb = TensorBoardLog(run.out, cfg) if cfg.run.tensorboard and run.writer else None
+    if tb is not None and all_df is not None and len(all_df):  # resumed: the episodes already done
+        tb.remember(all_df[all_df.episode < start])
     try:
         for first in range(start, cfg.run.episodes, K):
             tc = time.time()

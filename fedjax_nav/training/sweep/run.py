@@ -107,7 +107,7 @@ def run_batch(
         states, metrics = ckpt.restore(states)
         start = int(ckpt.latest())
     t0 = time.time()
-    tb = {job.id: TensorBoardLog(points_dir / job.id) for job, _, _ in spans if job.cfg.run.tensorboard}
+    tb = {job.id: TensorBoardLog(points_dir / job.id, job.cfg) for job, _, _ in spans if job.cfg.run.tensorboard}
     bar = tqdm(total=E, initial=start, desc=desc, unit="ep", leave=False, disable=not progress)
     try:
         for first in range(start, E, K):
