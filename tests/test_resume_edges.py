@@ -189,3 +189,15 @@ def test_resume_of_a_folder_without_a_config_says_to_start_again(tmp_path, capfd
     rc = cli.main(["train", "--from-checkpoint", "2", "--quiet"])
     one_line(capfd, rc, 2, "--from-checkpoint N needs --resume")
     assert sorted(p.name for p in run.iterdir()) == [rundir.LOCK]
+
+
+def test_flat_config_names_every_field():
+    """The fallback comparison of a resume against a config saved by other code reads every field
+    by its dotted name (a section's keys once collapsed to the section's name, so only its last
+    field was compared)."""
+    from fedjax_nav.config import Config, to_dict
+    from fedjax_nav.training.preflight import to_dict_flat
+
+    flat = to_dict_flat(Config())
+    assert flat["ddpg.gamma"] == 0.9 and flat["env.episode_length"] == 1024 and flat["method"] == "flddpg"
+    assert len(flat) == sum(len(v) if isinstance(v, dict) else 1 for v in to_dict(Config()).values())

@@ -151,7 +151,7 @@ def to_dict_flat(cfg) -> dict:
 
     d = cfg if isinstance(cfg, dict) else to_dict(cfg)
     return {
-        f"{s}.{k}" if isinstance(v, dict) else s: v
+        f"{s}.{k}" if isinstance(sec, dict) else s: v
         for s, sec in d.items()
         for k, v in (sec.items() if isinstance(sec, dict) else [(s, sec)])
     }
