@@ -188,21 +188,7 @@ def export_run(
 ) -> list[Path]:
     """Export one actor of a run; returns the files written. Raises ExportError (one-line message)."""
     load_run, EvalError, input_affine = _project()
-    if fmt not in FORMATS:
-        raise ExportError(f"--format {fmt!r}: unknown format (choose from {', '.join(FORMATS)})")
-    if fmt == "onnx":
-        try:
-            import onnx  # noqa: F401
-        except ImportError:
-            raise ExportError(
-                '--format onnx needs the onnx package: pip install "fedjax_nav[onnx]"; '
-                "--format numpy needs nothing more"
-            ) from None
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ExportError(f"{out}: exists and is not a directory (--out)")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise ExportError(f"{out}: exists and is not empty (--out); choose another folder or pass --force")
+    out = _checked_out(fmt, Path(out), force)
     try:
         run = load_run(run_dir)
     except EvalError as e:
@@ -213,9 +199,37 @@ def export_run(
         raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports {', '.join(EXPORTABLE)}")
     how = EXPORTS[cfg.learner]
     kind = how.kind(cfg)
-    e, d = cfg.env, getattr(cfg, how.section)
+    d = getattr(cfg, how.section)
     actor = _tree_map_index(run.actor_params, flat)
     weights = {**WEIGHTS[kind](actor, d.depth), **input_weights(actor, input_affine)}
+    meta = _export_meta(cfg, d, run_dir, fmt, seed, agent, flat, kind, weights)
+    return _write_export(out, fmt, meta, weights, kind, d.activation)
+
+
+def _checked_out(fmt: str, out: Path, force: bool) -> Path:
+    """`out` after checking --format (and that onnx is installed for it) and --out (a folder, empty
+    unless --force); ExportError otherwise."""
+    if fmt not in FORMATS:
+        raise ExportError(f"--format {fmt!r}: unknown format (choose from {', '.join(FORMATS)})")
+    if fmt == "onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError:
+            raise ExportError(
+                '--format onnx needs the onnx package: pip install "fedjax_nav[onnx]"; '
+                "--format numpy needs nothing more"
+            ) from None
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{out}: exists and is not a directory (--out)")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ExportError(f"{out}: exists and is not empty (--out); choose another folder or pass --force")
+    return out
+
+
+def _export_meta(cfg, d, run_dir, fmt: str, seed: int, agent: int, flat: int, kind: str, weights: dict) -> dict:
+    """meta.json of an export (without its "files" and "onnx" entries, which the writing adds); `d`
+    the config section of the actor's sizes."""
+    e = cfg.env
     obs_size = int(e.num_beams) + 4
     meta = {
         "format": fmt,
@@ -262,6 +276,11 @@ def export_run(
             "a GRU state h float32[gru]: zeros at an episode's start (a new goal: Policy.reset()), "
             "carried from one control step to the next (Policy keeps it; ONNX: input h, output h_out)"
         )
+    return meta
+
+
+def _write_export(out: Path, fmt: str, meta: dict, weights: dict, kind: str, activation: str) -> list[Path]:
+    """Write the export's files into `out` (the other format's files removed); returns them."""
     out.mkdir(parents=True, exist_ok=True)
     for name in ("weights.npz", "policy.onnx", "policy.py", "meta.json"):  # --force: no stale files of another format
         (out / name).unlink(missing_ok=True)
@@ -274,7 +293,7 @@ def export_run(
         meta["files"] = ["policy.onnx", "policy.py", "meta.json"]
         meta["onnx"] = {
             "input": "obs",
-            "input_shape": ["batch", obs_size],
+            "input_shape": ["batch", meta["network"]["obs_size"]],
             "output": "action",
             "output_shape": ["batch", 2],
             "opset": ONNX_OPSET,
@@ -284,7 +303,7 @@ def export_run(
             meta["onnx"].update(state_input="h", state_output="h_out", state_shape=["batch", gru])
         model = onnx_model(
             weights,
-            d.activation,
+            activation,
             {
                 k: meta[k]
                 for k in ("num_beams", "max_range", "v_max", "omega_max", "dt", "run_dir", "seed", "agent", "network")

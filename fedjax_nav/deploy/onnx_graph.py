@@ -33,102 +33,25 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
     Weights with an observation normaliser ("obs_norm/*") first take clip((obs - mean) / std),
     as policy_template.normalize_input."""
     import onnx
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper
 
     if kind not in INPUT_LAYER:
         raise ValueError(f"unknown network kind {kind!r}")
     depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
     obs_size = int(weights[f"{INPUT_LAYER[kind]}/kernel"].shape[0])
-    inits, nodes = [], []
-
-    def const(name, value):
-        inits.append(numpy_helper.from_array(np.asarray(value, np.float32), name))
-        return name
-
-    def gemm(x, prefix, out):
-        w = const(f"{prefix}.kernel", weights[f"{prefix}/kernel"])
-        if f"{prefix}/bias" not in weights:  # the GRU's recurrent gates have no bias
-            nodes.append(helper.make_node("MatMul", [x, w], [out], name=f"{prefix}.matmul"))
-            return out
-        b = const(f"{prefix}.bias", weights[f"{prefix}/bias"])
-        nodes.append(helper.make_node("Gemm", [x, w, b], [out], name=f"{prefix}.gemm"))
-        return out
-
-    def node(op, ins, out):
-        nodes.append(helper.make_node(op, ins, [out]))
-        return out
-
-    def act(x, i):
-        out = f"h{i}" if isinstance(i, int) else i
-        if activation == "relu":
-            nodes.append(helper.make_node("Relu", [x], [out]))
-        elif activation == "tanh":
-            nodes.append(helper.make_node("Tanh", [x], [out]))
-        elif activation == "elu":
-            nodes.append(helper.make_node("Elu", [x], [out], alpha=1.0))
-        elif activation == "silu":  # x * sigmoid(x)
-            nodes.append(helper.make_node("Sigmoid", [x], [f"{x}.sig"]))
-            nodes.append(helper.make_node("Mul", [x, f"{x}.sig"], [out]))
-        elif activation == "gelu":  # flax's gelu: the tanh approximation, spelled out (Gelu is opset 20)
-            c = const(f"{x}.c", np.sqrt(2.0 / np.pi))
-            k = const(f"{x}.k", 0.044715)
-            half, one = const(f"{x}.half", 0.5), const(f"{x}.one", 1.0)
-            n = lambda op, ins, o: nodes.append(helper.make_node(op, ins, [o]))  # noqa: E731
-            n("Mul", [x, x], f"{x}.x2")
-            n("Mul", [f"{x}.x2", x], f"{x}.x3")
-            n("Mul", [k, f"{x}.x3"], f"{x}.kx3")
-            n("Add", [x, f"{x}.kx3"], f"{x}.inner")
-            n("Mul", [c, f"{x}.inner"], f"{x}.arg")
-            n("Tanh", [f"{x}.arg"], f"{x}.t")
-            n("Add", [one, f"{x}.t"], f"{x}.1t")
-            n("Mul", [half, f"{x}.1t"], f"{x}.cdf")
-            n("Mul", [x, f"{x}.cdf"], out)
-        else:
-            raise ValueError(f"unknown activation {activation!r}")
-        return out
-
-    def squash_into_box(mean):  # loc + scale * tanh(mean): the squashed Gaussian's mode
-        t = node("Tanh", [mean], f"{mean}.tanh")
-        scaled = node("Mul", [const("box.scale", [[0.5, 1.0]]), t], f"{mean}.scaled")
-        return node("Add", [const("box.loc", [[0.5, 0.0]]), scaled], "action")
-
+    g = _Graph(weights, activation)
     inputs = [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])]
     outputs = [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", 2])]
-    x = "obs"
-    if "obs_norm/mean" in weights:  # policy_template.normalize_input
-        c = float(weights["obs_norm/clip"])
-        z = node(
-            "Div",
-            [
-                node("Sub", ["obs", const("obs_norm.mean", weights["obs_norm/mean"])], "obs.centred"),
-                const("obs_norm.std", weights["obs_norm/std"]),
-            ],
-            "obs.scaled",
-        )
-        x = node("Clip", [z, const("obs_norm.low", -c), const("obs_norm.high", c)], "obs.norm")
-    if kind == "gru":  # flax's GRUCell, as policy_template.gru_cell
+    x = _normalized_input(g, "obs")
+    if kind == "gru":
         gru = int(weights["gru/hn/kernel"].shape[0])
         inputs.append(helper.make_tensor_value_info("h", TensorProto.FLOAT, ["batch", gru]))
         outputs.append(helper.make_tensor_value_info("h_out", TensorProto.FLOAT, ["batch", gru]))
-        x = act(gemm(x, "embed", "embed.z"), "embed.out")
-        r_pre = node("Add", [gemm(x, "gru/ir", "ir"), gemm("h", "gru/hr", "hr")], "r.pre")
-        z_pre = node("Add", [gemm(x, "gru/iz", "iz"), gemm("h", "gru/hz", "hz")], "z.pre")
-        r, z = node("Sigmoid", [r_pre], "r"), node("Sigmoid", [z_pre], "z")
-        rh = node("Mul", [r, gemm("h", "gru/hn", "hn")], "r.hn")
-        n = node("Tanh", [node("Add", [gemm(x, "gru/in", "in"), rh], "n.pre")], "n")
-        one_minus_z = node("Sub", [const("gru.one", 1.0), z], "1-z")
-        x = node("Add", [node("Mul", [one_minus_z, n], "(1-z)n"), node("Mul", [z, "h"], "zh")], "h_out")
+        x = _gru_layers(g, x)
     for i in range(depth):
-        x = act(gemm(x, f"hidden_{i}", f"z{i}"), i)
-    if kind == "heads":
-        gemm(x, "v_head", "v_pre")
-        gemm(x, "omega_head", "omega_pre")
-        nodes.append(helper.make_node("Sigmoid", ["v_pre"], ["v"]))
-        nodes.append(helper.make_node("Tanh", ["omega_pre"], ["omega"]))
-        nodes.append(helper.make_node("Concat", ["v", "omega"], ["action"], axis=1))
-    else:
-        squash_into_box(gemm(x, "mean" if kind == "squashed" else "head", "mean_pre"))
-    graph = helper.make_graph(nodes, "fedjax_nav_actor", inputs, outputs, initializer=inits)
+        x = g.act(g.gemm(x, f"hidden_{i}", f"z{i}"), i)
+    _action_head(g, x, kind)
+    graph = helper.make_graph(g.nodes, "fedjax_nav_actor", inputs, outputs, initializer=g.inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", ONNX_OPSET)], producer_name="fedjax_nav")
     model.ir_version = ONNX_IR_VERSION
     model.doc_string = (
@@ -141,3 +64,107 @@ def onnx_model(weights: dict[str, np.ndarray], activation: str, metadata: dict |
         entry.key, entry.value = str(key), value if isinstance(value, str) else json.dumps(value)
     onnx.checker.check_model(model)
     return model
+
+
+class _Graph:
+    """The initializers and nodes of the graph being built, in the order they are added, and the
+    ops that add them (from the export's weights, named by their weights.npz keys)."""
+
+    def __init__(self, weights: dict[str, np.ndarray], activation: str):
+        from onnx import helper, numpy_helper
+
+        self.helper, self.numpy_helper = helper, numpy_helper
+        self.weights, self.activation = weights, activation
+        self.inits, self.nodes = [], []
+
+    def const(self, name, value):
+        self.inits.append(self.numpy_helper.from_array(np.asarray(value, np.float32), name))
+        return name
+
+    def gemm(self, x, prefix, out):
+        w = self.const(f"{prefix}.kernel", self.weights[f"{prefix}/kernel"])
+        if f"{prefix}/bias" not in self.weights:  # the GRU's recurrent gates have no bias
+            self.nodes.append(self.helper.make_node("MatMul", [x, w], [out], name=f"{prefix}.matmul"))
+            return out
+        b = self.const(f"{prefix}.bias", self.weights[f"{prefix}/bias"])
+        self.nodes.append(self.helper.make_node("Gemm", [x, w, b], [out], name=f"{prefix}.gemm"))
+        return out
+
+    def node(self, op, ins, out, **attrs):
+        self.nodes.append(self.helper.make_node(op, ins, [out], **attrs))
+        return out
+
+    def act(self, x, i):
+        out = f"h{i}" if isinstance(i, int) else i
+        if self.activation == "relu":
+            self.node("Relu", [x], out)
+        elif self.activation == "tanh":
+            self.node("Tanh", [x], out)
+        elif self.activation == "elu":
+            self.node("Elu", [x], out, alpha=1.0)
+        elif self.activation == "silu":  # x * sigmoid(x)
+            self.node("Sigmoid", [x], f"{x}.sig")
+            self.node("Mul", [x, f"{x}.sig"], out)
+        elif self.activation == "gelu":  # flax's gelu: the tanh approximation, spelled out (Gelu is opset 20)
+            c = self.const(f"{x}.c", np.sqrt(2.0 / np.pi))
+            k = self.const(f"{x}.k", 0.044715)
+            half, one = self.const(f"{x}.half", 0.5), self.const(f"{x}.one", 1.0)
+            n = self.node
+            n("Mul", [x, x], f"{x}.x2")
+            n("Mul", [f"{x}.x2", x], f"{x}.x3")
+            n("Mul", [k, f"{x}.x3"], f"{x}.kx3")
+            n("Add", [x, f"{x}.kx3"], f"{x}.inner")
+            n("Mul", [c, f"{x}.inner"], f"{x}.arg")
+            n("Tanh", [f"{x}.arg"], f"{x}.t")
+            n("Add", [one, f"{x}.t"], f"{x}.1t")
+            n("Mul", [half, f"{x}.1t"], f"{x}.cdf")
+            n("Mul", [x, f"{x}.cdf"], out)
+        else:
+            raise ValueError(f"unknown activation {self.activation!r}")
+        return out
+
+
+def _normalized_input(g: _Graph, x: str) -> str:
+    """clip((obs - mean) / std, -clip, clip) with the weights' observation normaliser
+    (policy_template.normalize_input); `x` itself without one."""
+    w = g.weights
+    if "obs_norm/mean" not in w:
+        return x
+    c = float(w["obs_norm/clip"])
+    z = g.node(
+        "Div",
+        [
+            g.node("Sub", [x, g.const("obs_norm.mean", w["obs_norm/mean"])], "obs.centred"),
+            g.const("obs_norm.std", w["obs_norm/std"]),
+        ],
+        "obs.scaled",
+    )
+    return g.node("Clip", [z, g.const("obs_norm.low", -c), g.const("obs_norm.high", c)], "obs.norm")
+
+
+def _gru_layers(g: _Graph, x: str) -> str:
+    """The embedding and flax's GRUCell on input "h", as policy_template.gru_cell; returns "h_out"."""
+    node, gemm = g.node, g.gemm
+    x = g.act(gemm(x, "embed", "embed.z"), "embed.out")
+    r_pre = node("Add", [gemm(x, "gru/ir", "ir"), gemm("h", "gru/hr", "hr")], "r.pre")
+    z_pre = node("Add", [gemm(x, "gru/iz", "iz"), gemm("h", "gru/hz", "hz")], "z.pre")
+    r, z = node("Sigmoid", [r_pre], "r"), node("Sigmoid", [z_pre], "z")
+    rh = node("Mul", [r, gemm("h", "gru/hn", "hn")], "r.hn")
+    n = node("Tanh", [node("Add", [gemm(x, "gru/in", "in"), rh], "n.pre")], "n")
+    one_minus_z = node("Sub", [g.const("gru.one", 1.0), z], "1-z")
+    return node("Add", [node("Mul", [one_minus_z, n], "(1-z)n"), node("Mul", [z, "h"], "zh")], "h_out")
+
+
+def _action_head(g: _Graph, x: str, kind: str) -> str:
+    """ "action" from the hidden stack's output: the sigmoid and tanh heads ("heads"), or the
+    squashed Gaussian's mode loc + scale * tanh(mean) in the action box."""
+    if kind == "heads":
+        g.gemm(x, "v_head", "v_pre")
+        g.gemm(x, "omega_head", "omega_pre")
+        g.node("Sigmoid", ["v_pre"], "v")
+        g.node("Tanh", ["omega_pre"], "omega")
+        return g.node("Concat", ["v", "omega"], "action", axis=1)
+    mean = g.gemm(x, "mean" if kind == "squashed" else "head", "mean_pre")
+    t = g.node("Tanh", [mean], f"{mean}.tanh")
+    scaled = g.node("Mul", [g.const("box.scale", [[0.5, 1.0]]), t], f"{mean}.scaled")
+    return g.node("Add", [g.const("box.loc", [[0.5, 0.0]]), scaled], "action")

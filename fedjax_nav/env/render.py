@@ -35,6 +35,7 @@ _CIRCLE = "#5f7f9f"
 _START = "#1f77b4"
 _GOAL = "#2ca02c"
 _PATH = "#d62728"
+_LABEL_FONTSIZE = 7  # the G<i> and S<i> labels
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -105,13 +106,36 @@ def draw_world(
     filled (boxes become exactly such groups), other segments are drawn as thin walls.
     title: True for "name (W x H m)", a string, or False/None for none.
     """
-    from matplotlib.patches import Circle, FancyArrow, Polygon, Rectangle
-
     world, meta = _as_world(world, meta)
     w = _numpy_world(world)
     W, H = w["size"]
     hx, hy = W / 2, H / 2
 
+    _draw_obstacles(ax, w, meta)
+    _draw_goals(ax, w["goals"], goal_radius, labels)
+    _draw_starts(ax, w["starts"], robot_radius, labels)
+
+    ax.set_xlim(-hx - margin, hx + margin)
+    ax.set_ylim(-hy - margin, hy + margin)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.tick_params(labelsize=7)
+    if title is True:
+        name = meta.get("name", "")
+        title = f"{name} ({W:g} x {H:g} m)" if name else f"{W:g} x {H:g} m"
+    if title:
+        ax.set_title(title, fontsize=10)
+    return ax
+
+
+def _draw_obstacles(ax, w: dict, meta: dict) -> None:
+    """The outer walls (a band), the boxes (filled), the other segments (thin walls) and the circles
+    of the numpy world `w` (`_numpy_world`)."""
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    W, H = w["size"]
+    hx, hy = W / 2, H / 2
     # Outer walls: a grey band outside the inner free space (inner faces at +-size/2).
     band = 0.15
     ax.add_patch(
@@ -144,8 +168,12 @@ def draw_world(
     for cx, cy, r in w["circles"]:
         ax.add_patch(Circle((cx, cy), r, facecolor=_CIRCLE, edgecolor="black", lw=0.6, zorder=2))
 
-    fs = 7
-    for i, (gx, gy) in enumerate(w["goals"]):
+
+def _draw_goals(ax, goals: np.ndarray, goal_radius: float, labels: bool) -> None:
+    """Each goal: a star in a disc of the goal radius, labelled G<i> below it."""
+    from matplotlib.patches import Circle
+
+    for i, (gx, gy) in enumerate(goals):
         ax.add_patch(Circle((gx, gy), goal_radius, facecolor=_GOAL, alpha=0.25, edgecolor=_GOAL, lw=1.0, zorder=1))
         ax.plot([gx], [gy], marker="*", color=_GOAL, ms=8, zorder=4)
         if labels:
@@ -156,12 +184,18 @@ def draw_world(
                 textcoords="offset points",
                 ha="center",
                 va="top",
-                fontsize=fs,
+                fontsize=_LABEL_FONTSIZE,
                 color="darkgreen",
                 zorder=5,
             )
+
+
+def _draw_starts(ax, starts: np.ndarray, robot_radius: float, labels: bool) -> None:
+    """Each start: the robot's disc with an arrow along its heading, labelled S<i> behind it."""
+    from matplotlib.patches import Circle, FancyArrow
+
     L = 0.45
-    for i, (sx, sy, th) in enumerate(w["starts"]):
+    for i, (sx, sy, th) in enumerate(starts):
         ax.add_patch(Circle((sx, sy), robot_radius, facecolor="white", edgecolor=_START, lw=1.2, zorder=4))
         ax.add_patch(
             FancyArrow(
@@ -186,23 +220,10 @@ def draw_world(
                 textcoords="offset points",
                 ha="center",
                 va="center",
-                fontsize=fs,
+                fontsize=_LABEL_FONTSIZE,
                 color=_START,
                 zorder=5,
             )
-
-    ax.set_xlim(-hx - margin, hx + margin)
-    ax.set_ylim(-hy - margin, hy + margin)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.tick_params(labelsize=7)
-    if title is True:
-        name = meta.get("name", "")
-        title = f"{name} ({W:g} x {H:g} m)" if name else f"{W:g} x {H:g} m"
-    if title:
-        ax.set_title(title, fontsize=10)
-    return ax
 
 
 def draw_trajectories(

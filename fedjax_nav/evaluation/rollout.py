@@ -281,38 +281,10 @@ def evaluate_policy(
     """
     if not isinstance(world, World):
         world = _worlds.load(world)
-    check_counts(attempts, max_steps)
-    if not (0 <= range_noise < float("inf") and 0 <= action_noise < float("inf")):  # NaN fails too
-        raise EvalError(
-            f"noise stds must be finite and >= 0, got range_noise={range_noise}, action_noise={action_noise}"
-        )
-    n_goals = int(world.num_goals)
-    goal_rows = list(range(n_goals)) if goals is None else [int(g) for g in goals]
-    bad = [g for g in goal_rows if not 0 <= g < n_goals]
-    if bad or not goal_rows:
-        raise EvalError(f"goals must be rows 0..{n_goals - 1} of the world's goals, got {goals}")
+    goal_rows = _checked_goal_rows(world, goals, attempts, max_steps, range_noise, action_noise)
+    A, fn, agent_params = _policy_agents(policy, params, num_agents)
 
-    if params is None:
-        A = int(num_agents or 1)
-        fn = _wrap_obs_only(policy)
-        agent_params = jnp.zeros((A,))  # a dummy leaf carrying the agent axis
-    else:
-        leaves = jax.tree.leaves(params)
-        if not leaves:
-            raise EvalError("params has no leaves")
-        A = int(leaves[0].shape[0])
-        if num_agents is not None and num_agents != A:
-            raise EvalError(f"num_agents={num_agents} but params have {A} agents on their leading axis")
-        fn, agent_params = policy, params
-
-    if env_settings is None:
-        env_settings = {
-            "num_beams": int(num_beams),
-            "max_range": float(max_range),
-            "collision_test": str(collision_test),
-            **(robot or {}),
-        }
-    settings = {**env_settings, "episode_length": int(max_steps), "mode": "eval", "noise": True}
+    settings = _eval_settings(env_settings, num_beams, max_range, collision_test, robot, max_steps)
     env_params = make_params(world, range_noise=range_noise, action_noise=action_noise, **env_overrides)
     G, K = len(goal_rows), int(attempts)
     state = episode_state(settings, env_params, fn)
@@ -341,6 +313,43 @@ def evaluate_policy(
         seed=int(seed),
         wall_s=wall,
     )
+
+
+def _eval_settings(env_settings, num_beams, max_range, collision_test, robot, max_steps) -> dict:
+    """NavEnv's settings of an evaluation: `env_settings` (else the sensor's and robot's), eval mode, noise on."""
+    if env_settings is None:
+        sensor = {"num_beams": int(num_beams), "max_range": float(max_range), "collision_test": str(collision_test)}
+        env_settings = {**sensor, **(robot or {})}
+    return {**env_settings, "episode_length": int(max_steps), "mode": "eval", "noise": True}
+
+
+def _checked_goal_rows(world: World, goals, attempts, max_steps, range_noise, action_noise) -> list[int]:
+    """The world's goal rows to evaluate, the counts and noise stds checked (EvalError otherwise)."""
+    check_counts(attempts, max_steps)
+    if not (0 <= range_noise < float("inf") and 0 <= action_noise < float("inf")):  # NaN fails too
+        raise EvalError(
+            f"noise stds must be finite and >= 0, got range_noise={range_noise}, action_noise={action_noise}"
+        )
+    n_goals = int(world.num_goals)
+    goal_rows = list(range(n_goals)) if goals is None else [int(g) for g in goals]
+    bad = [g for g in goal_rows if not 0 <= g < n_goals]
+    if bad or not goal_rows:
+        raise EvalError(f"goals must be rows 0..{n_goals - 1} of the world's goals, got {goals}")
+    return goal_rows
+
+
+def _policy_agents(policy: Callable, params: Any, num_agents: int | None) -> tuple[int, Callable, Any]:
+    """(A, the policy as `fn(agent_params, obs)`, the agent params with their leading axis [A])."""
+    if params is None:
+        A = int(num_agents or 1)
+        return A, _wrap_obs_only(policy), jnp.zeros((A,))  # a dummy leaf carrying the agent axis
+    leaves = jax.tree.leaves(params)
+    if not leaves:
+        raise EvalError("params has no leaves")
+    A = int(leaves[0].shape[0])
+    if num_agents is not None and num_agents != A:
+        raise EvalError(f"num_agents={num_agents} but params have {A} agents on their leading axis")
+    return A, policy, params
 
 
 # ----------------------------------------------------------------------------- runs as data

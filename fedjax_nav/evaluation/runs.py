@@ -242,7 +242,29 @@ def evaluate_run(
         **values,
     )
     frame = episodes_frame(result, run.agent_seed, run.agent_net, run.agent_byzantine)
-    summary = {
+    noise = (range_noise, action_noise)
+    summary = _run_summary(run, result, frame, world, meta, attempts, k_eff, T, noise, robot, seed)
+    world_arg = str(world) if robot == cfg.robot else f"{rundir.world_slug(world)}-robot-{robot.model}"
+    return RunEvaluation(run, result, frame, summary, w, meta, world_arg)
+
+
+def _run_summary(
+    run: RunAgents,
+    result,
+    frame,
+    world,
+    meta: dict,
+    attempts: int,
+    k_eff: int,
+    T: int,
+    noise: tuple[float, float],
+    robot,
+    seed: int,
+) -> dict:
+    """eval.json's summary of `evaluate_run`: what was evaluated, how, and `summarize(frame)`."""
+    cfg, e = run.cfg, run.cfg.env
+    range_noise, action_noise = noise
+    return {
         "run_dir": str(run.run_dir),
         "method": cfg.method,
         "world": str(meta.get("name", world)),
@@ -273,8 +295,6 @@ def evaluate_run(
         "wall_s": result.wall_s,
         "jax_backend": jax.default_backend(),
     }
-    world_arg = str(world) if robot == cfg.robot else f"{rundir.world_slug(world)}-robot-{robot.model}"
-    return RunEvaluation(run, result, frame, summary, w, meta, world_arg)
 
 
 def evaluated(run_dir: str | Path, world: str | Path = "eval", attempts: int = ATTEMPTS, figures: bool = False):

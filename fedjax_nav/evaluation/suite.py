@@ -171,41 +171,8 @@ def evaluate_suite(
         wall = time.time() - t0
         (sp, sp_s), waited = shortest.result(), time.time() - t0 - wall
     valid = np.arange(G)[None, :] < np.asarray(world.num_goals)[:, None]  # [R, G]
-    r, a, g, k = np.meshgrid(np.arange(R), np.arange(A), np.arange(G), np.arange(K), indexing="ij")
-    keep = valid[r, g].ravel()
-    success = out["success"].ravel().astype(int)
-    path = out["path"].ravel().astype(np.float64)
-    shortest_m = sp[r.ravel(), g.ravel()]
-    starts, goals = np.asarray(world.starts)[:, 0, :2], np.asarray(world.goals)
-    straight = np.linalg.norm(goals - starts[:, None], axis=-1)[r.ravel(), g.ravel()] - float(values["goal_radius"])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where((success == 1) & (shortest_m > 0), path / shortest_m, np.nan)
-    ep = pd.DataFrame(
-        {
-            "room": r.ravel(),
-            "family": families[r.ravel()],
-            "room_seed": room_seeds[r.ravel()],
-            "seed": run.agent_seed[a.ravel()],
-            "net": run.agent_net[a.ravel()],
-            "byzantine": run.agent_byzantine[a.ravel()].astype(int),
-            "goal": g.ravel(),
-            "attempt": k.ravel(),
-            "success": success,
-            "collision": out["collision"].ravel().astype(int),
-            "timeout": out["timeout"].ravel().astype(int),
-            "steps": out["steps"].ravel(),
-            "path_length": out["path"].ravel(),
-            "shortest_path": shortest_m,
-            "straight_line": straight,
-            "path_ratio": ratio,
-        }
-    )[keep].reset_index(drop=True)
-    fams = pd.DataFrame(
-        [
-            family_row(name, part)
-            for name, part in [*((f, ep[ep.family == f]) for f in dict.fromkeys(families)), ("all", ep)]
-        ]
-    )
+    ep = _suite_episodes(run, world, families, room_seeds, out, sp, valid, float(values["goal_radius"]))
+    fams = _suite_families(ep, families)
     summary = {
         "run_dir": str(run.run_dir),
         "method": cfg.method,
@@ -238,6 +205,53 @@ def evaluate_suite(
         "wall_s": wall,
     }
     return {"summary": summary, "families": fams, "episodes": ep}
+
+
+def _suite_episodes(
+    run: RunAgents, world, families, room_seeds, out: dict, sp, valid, goal_radius: float
+) -> pd.DataFrame:
+    """suite_episodes.csv: one row per episode of the rollout `out` [R, A, G, K] on a valid goal
+    (`valid` [R, G]), with its room, agent, the shortest safe path `sp` [R, G] and the ratio to it."""
+    R, A, G, K = out["success"].shape
+    r, a, g, k = np.meshgrid(np.arange(R), np.arange(A), np.arange(G), np.arange(K), indexing="ij")
+    keep = valid[r, g].ravel()
+    success = out["success"].ravel().astype(int)
+    path = out["path"].ravel().astype(np.float64)
+    shortest_m = sp[r.ravel(), g.ravel()]
+    starts, goals = np.asarray(world.starts)[:, 0, :2], np.asarray(world.goals)
+    straight = np.linalg.norm(goals - starts[:, None], axis=-1)[r.ravel(), g.ravel()] - goal_radius
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where((success == 1) & (shortest_m > 0), path / shortest_m, np.nan)
+    return pd.DataFrame(
+        {
+            "room": r.ravel(),
+            "family": families[r.ravel()],
+            "room_seed": room_seeds[r.ravel()],
+            "seed": run.agent_seed[a.ravel()],
+            "net": run.agent_net[a.ravel()],
+            "byzantine": run.agent_byzantine[a.ravel()].astype(int),
+            "goal": g.ravel(),
+            "attempt": k.ravel(),
+            "success": success,
+            "collision": out["collision"].ravel().astype(int),
+            "timeout": out["timeout"].ravel().astype(int),
+            "steps": out["steps"].ravel(),
+            "path_length": out["path"].ravel(),
+            "shortest_path": shortest_m,
+            "straight_line": straight,
+            "path_ratio": ratio,
+        }
+    )[keep].reset_index(drop=True)
+
+
+def _suite_families(ep: pd.DataFrame, families) -> pd.DataFrame:
+    """suite_families.csv: `family_row` of each family of the suite (in the suite's order), then of all."""
+    return pd.DataFrame(
+        [
+            family_row(name, part)
+            for name, part in [*((f, ep[ep.family == f]) for f in dict.fromkeys(families)), ("all", ep)]
+        ]
+    )
 
 
 def write_suite(result: dict, out: str | Path) -> list[Path]:

@@ -243,16 +243,12 @@ def bench_train(
     return rows
 
 
-def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 2) -> list[dict]:
-    """A grid of `points` tau values x 1 seed of the thesis FLDDPG preset: the runs one by one (one
-    compiled program, batch 1, tau a traced scalar) against one vmapped batch of `points` rows (what
-    `fedjax-nav sweep` runs). Both timed after compilation, alternately `repeat` times (best of
-    each); the ratio is per run."""
+def _sweep_config(episodes: int, overrides=()):
+    """The thesis FLDDPG preset of `bench_sweep`: `episodes` episodes in one chunk, federated every
+    2 episodes (or every one), no checkpoints, then `overrides`."""
     from fedjax_nav.config import load_config
-    from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
-    from fedjax_nav.training.trainer import Trainer
 
-    cfg = load_config(
+    return load_config(
         "configs/thesis/flddpg.yaml" if os.path.exists("configs/thesis/flddpg.yaml") else None,
         [
             f"run.chunk_episodes={episodes}",
@@ -262,6 +258,17 @@ def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 
             *overrides,
         ],
     )
+
+
+def bench_sweep(points: int = 4, episodes: int = 2, overrides=(), repeat: int = 2) -> list[dict]:
+    """A grid of `points` tau values x 1 seed of the thesis FLDDPG preset: the runs one by one (one
+    compiled program, batch 1, tau a traced scalar) against one vmapped batch of `points` rows (what
+    `fedjax-nav sweep` runs). Both timed after compilation, alternately `repeat` times (best of
+    each); the ratio is per run."""
+    from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
+    from fedjax_nav.training.trainer import Trainer
+
+    cfg = _sweep_config(episodes, overrides)
     tr = Trainer(cfg)
     base = hparams_from_config(cfg)
     taus = np.linspace(0.0, 1.0, points).astype(np.float32)

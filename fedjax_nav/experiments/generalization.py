@@ -206,16 +206,22 @@ def report(
     if len(curves):
         figs.append(gf.probe_figure(curves, out / f"{probe}.png"))
     if copy_figures is not None:
-        figures = {f.name: f for f in figs}
-        for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
-            src = rundir.eval_dir(points / r.point, gz.ARENA) / rundir.EVAL_TRAJECTORIES_FIGURE
-            if src.exists():
-                key = f"{name}_arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}"
-                figures[key + (f"_{r.point}" if key + ".png" in figures else "") + ".png"] = src
-        for _, r in t.iterrows():  # the worst rooms of every point's suite evaluation
-            src = worst_figure(points / r.point, suite)
-            if src.exists():
-                figures[f"{name}_worst_rooms_{_slug(r.label)}.png"] = src
-        copied += rundir.copy_into(copy_figures, figures)
+        copied += rundir.copy_into(copy_figures, _figures_to_copy(figs, t, points, suite, name))
     echo(f"{name} report: {len(t)} point(s) in {out}/{name}.md; {len(figs)} figure(s)")
     return {"points": len(t), "figures": figs, "copied": copied}
+
+
+def _figures_to_copy(figs: list[Path], t, points: Path, suite: str, name: str) -> dict[str, Path]:
+    """The report's figures `figs`, the FLDDPG points' arena trajectories and every point's worst
+    rooms of `suite`, by the name each gets in the figures folder."""
+    figures = {f.name: f for f in figs}
+    for _, r in t[t.method == "flddpg"].iterrows():  # failures drawn: every attempt in the arena
+        src = rundir.eval_dir(points / r.point, gz.ARENA) / rundir.EVAL_TRAJECTORIES_FIGURE
+        if src.exists():
+            key = f"{name}_arena_flddpg_{r.rooms.split(' ')[0]}_{r.episodes}"
+            figures[key + (f"_{r.point}" if key + ".png" in figures else "") + ".png"] = src
+    for _, r in t.iterrows():  # the worst rooms of every point's suite evaluation
+        src = worst_figure(points / r.point, suite)
+        if src.exists():
+            figures[f"{name}_worst_rooms_{_slug(r.label)}.png"] = src
+    return figures

@@ -194,6 +194,22 @@ def evaluate_points(
 # ----------------------------------------------------------------------------- the command
 
 
+def _write_tables(out: Path, by_name: dict, points: Path, tables: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Tables 2 and 3 (csv and markdown) and every experiment's by_setting.csv into `out`; returns
+    Tables 2 and 3 (Table 3 empty without the methods experiment)."""
+    t2 = table2()
+    rundir.atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
+    rundir.atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(md_table(t2) + "\n"))
+    t3 = table3(by_name["methods"], points) if "methods" in by_name else pd.DataFrame()
+    rundir.atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
+    rundir.atomic_write(
+        out / "table3_communication.md", lambda p: Path(p).write_text(md_table(t3) + "\n" if len(t3) else "")
+    )
+    for name, t in tables.items():
+        rundir.atomic_write(experiment_dir(out, name) / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
+    return t2, t3
+
+
 def reproduce(
     scale: str = "ci",
     out: str | Path | None = None,
@@ -230,16 +246,7 @@ def reproduce(
     by_name = {s.name: s for s in sweeps}
     tables = {s.name: by_setting(s, points) for s in sweeps}
     figs = draw_figures(by_name, out, evals, tables)
-    t2 = table2()
-    rundir.atomic_write(out / "table2_hyperparameters.csv", lambda p: t2.to_csv(p, index=False))
-    rundir.atomic_write(out / "table2_hyperparameters.md", lambda p: Path(p).write_text(md_table(t2) + "\n"))
-    t3 = table3(by_name["methods"], points) if "methods" in by_name else pd.DataFrame()
-    rundir.atomic_write(out / "table3_communication.csv", lambda p: t3.to_csv(p, index=False))
-    rundir.atomic_write(
-        out / "table3_communication.md", lambda p: Path(p).write_text(md_table(t3) + "\n" if len(t3) else "")
-    )
-    for name, t in tables.items():
-        rundir.atomic_write(experiment_dir(out, name) / "by_setting.csv", lambda p, t=t: t.to_csv(p, index=False))
+    t2, t3 = _write_tables(out, by_name, points, tables)
     info = {
         "scale": scale,
         "overrides": list(sc.overrides),

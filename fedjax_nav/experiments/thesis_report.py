@@ -203,8 +203,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
     from fedjax_nav.analysis import thesis_figures as tf
 
     def res(name):
-        f = experiment_dir(out, name) / rundir.SWEEP_RESULTS
-        return pd.read_csv(f) if name in sweeps and f.exists() and f.stat().st_size > 1 else pd.DataFrame()
+        return _results(sweeps, out, name)
 
     paths = []
     r = res("buffer_snddpg")
@@ -218,33 +217,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
         )
     rs, re_ = res("fed_period_steps"), res("fed_period_episodes")
     if len(rs) or len(re_):
-        runs = {
-            **(_runs(rs, "fed.period", lambda v: f"T_update = {v}") if len(rs) else {}),
-            **(_runs(re_, "fed.period", lambda v: f"E_update = {v}") if len(re_) else {}),
-        }
-        paths.append(
-            tf.learning_figure(
-                runs, out / "fig12_fed_period_learning.png", title="Fig. 12: FLDDPG, federated update period"
-            )
-        )
-        tabs = []
-        for name, prefix in (("fed_period_steps", "T"), ("fed_period_episodes", "E")):
-            if name in sweeps:
-                t = tables[name].copy()
-                if len(t):
-                    t["label"] = [f"{prefix}={v}" for v in t["setting"]]
-                    tabs.append(t)
-        t = pd.concat(tabs)
-        paths.append(
-            tf.bars_figure(
-                t["label"],
-                t["success"],
-                t["success_std"],
-                out / "fig13_fed_period_success.png",
-                "success, last 25 episodes",
-                "Fig. 13: FLDDPG, federated update period",
-            )
-        )
+        paths += _period_figures(sweeps, out, tables, rs, re_)
     r = res("tau")
     if len(r):
         names = {0.0: "tau = 0 (IDDPG)", 0.5: "tau = 0.5 (soft)", 1.0: "tau = 1 (hard FedAvg)"}
@@ -276,37 +249,88 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
             )
         )
     if len(evals):
-        em = evals[evals["experiment"] == "methods"]
-        if len(em):
-            best = em.assign(success=em["best_success"], success_seed_std=em["best_success_seed_std"])
-            paths.append(
-                tf.eval_figure(
-                    best,
-                    out / "fig17_eval_best_agents.png",
-                    "Fig. 17: evaluation, best agent per seed (selected on evaluation data)",
-                    panels=tf.EVAL_PANELS[:1],
-                )
+        paths += _eval_figures(sweeps, out, evals)
+    return paths
+
+
+def _results(sweeps: dict, out: Path, name: str) -> pd.DataFrame:
+    """The results.csv of experiment `name` (empty when it did not run or has no rows yet)."""
+    f = experiment_dir(out, name) / rundir.SWEEP_RESULTS
+    return pd.read_csv(f) if name in sweeps and f.exists() and f.stat().st_size > 1 else pd.DataFrame()
+
+
+def _period_figures(sweeps: dict, out: Path, tables: dict, rs: pd.DataFrame, re_: pd.DataFrame) -> list[Path]:
+    """Fig. 12 (learning) and Fig. 13 (success bars) of the federated update period, in steps (`rs`)
+    and in episodes (`re_`)."""
+    from fedjax_nav.analysis import thesis_figures as tf
+
+    paths = []
+    runs = {
+        **(_runs(rs, "fed.period", lambda v: f"T_update = {v}") if len(rs) else {}),
+        **(_runs(re_, "fed.period", lambda v: f"E_update = {v}") if len(re_) else {}),
+    }
+    paths.append(
+        tf.learning_figure(
+            runs, out / "fig12_fed_period_learning.png", title="Fig. 12: FLDDPG, federated update period"
+        )
+    )
+    tabs = []
+    for name, prefix in (("fed_period_steps", "T"), ("fed_period_episodes", "E")):
+        if name in sweeps:
+            t = tables[name].copy()
+            if len(t):
+                t["label"] = [f"{prefix}={v}" for v in t["setting"]]
+                tabs.append(t)
+    t = pd.concat(tabs)
+    paths.append(
+        tf.bars_figure(
+            t["label"],
+            t["success"],
+            t["success_std"],
+            out / "fig13_fed_period_success.png",
+            "success, last 25 episodes",
+            "Fig. 13: FLDDPG, federated update period",
+        )
+    )
+    return paths
+
+
+def _eval_figures(sweeps: dict, out: Path, evals: pd.DataFrame) -> list[Path]:
+    """Fig. 17, 18 (the methods) and Fig. 20 (the improvements) from the evaluations `evals`."""
+    from fedjax_nav.analysis import thesis_figures as tf
+
+    paths = []
+    em = evals[evals["experiment"] == "methods"]
+    if len(em):
+        best = em.assign(success=em["best_success"], success_seed_std=em["best_success_seed_std"])
+        paths.append(
+            tf.eval_figure(
+                best,
+                out / "fig17_eval_best_agents.png",
+                "Fig. 17: evaluation, best agent per seed (selected on evaluation data)",
+                panels=tf.EVAL_PANELS[:1],
             )
-            paths.append(
-                tf.eval_figure(
-                    em,
-                    out / "fig18_eval_methods.png",
-                    "Fig. 18: evaluation, every trained agent",
-                    thesis=_thesis_eval(sweeps["methods"]),
-                )
+        )
+        paths.append(
+            tf.eval_figure(
+                em,
+                out / "fig18_eval_methods.png",
+                "Fig. 18: evaluation, every trained agent",
+                thesis=_thesis_eval(sweeps["methods"]),
             )
-        ei = evals[evals["experiment"] == "improvements"]
-        if len(ei):
-            ref = em[em["label"].isin(["flddpg", "snddpg"])] if len(em) else None
-            paths.append(
-                tf.eval_figure(
-                    ei,
-                    out / "fig20_eval_improvements.png",
-                    "Fig. 20: evaluation of the improvements (dotted: FLDDPG, SNDDPG)",
-                    reference=ref,
-                    thesis=_thesis_eval(sweeps["improvements"]),
-                )
+        )
+    ei = evals[evals["experiment"] == "improvements"]
+    if len(ei):
+        ref = em[em["label"].isin(["flddpg", "snddpg"])] if len(em) else None
+        paths.append(
+            tf.eval_figure(
+                ei,
+                out / "fig20_eval_improvements.png",
+                "Fig. 20: evaluation of the improvements (dotted: FLDDPG, SNDDPG)",
+                reference=ref,
+                thesis=_thesis_eval(sweeps["improvements"]),
             )
+        )
     return paths
 
 

@@ -183,7 +183,6 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
         return DENSE_BUILDERS[spec.family](rng, spec, density)
     c = spec.clearance
     n_cyl_slots, n_box_slots, K = slot_counts(spec)
-    S, G = spec.starts_max, spec.goals_max
     W = rng.uniform((), spec.width_min, spec.width_max)
     H = rng.uniform((), spec.height_min, spec.height_max)
     size = jnp.stack([W, H])
@@ -210,76 +209,19 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
     room_logits = jnp.where(active, jnp.log(jnp.maximum(core_ext[:, 0] * core_ext[:, 1], 1e-9)), -jnp.inf)
     hubs = core_lo + rng.u((rooms.shape[0], 2)) * (core_hi - core_lo)
 
-    def room_of(p):  # the active sub-room strictly containing p [..., 2]
-        inside = (
-            active
-            & (p[..., None, 0] > rooms[:, 0])
-            & (p[..., None, 0] < rooms[:, 2])
-            & (p[..., None, 1] > rooms[:, 1])
-            & (p[..., None, 1] < rooms[:, 3])
-        )
-        return jnp.argmax(inside, axis=-1)
-
     # 2. Goals, then starts (the farthest-first rule), uniformly in the cores by core area.
-    g_room = rng.categorical(room_logits, (G,))
-    goals = core_lo[g_room] + rng.u((G, 2)) * (core_hi[g_room] - core_lo[g_room])
-    g_active = jnp.arange(G) < n_goals
-    s_room_c = rng.categorical(room_logits, (S, _START_TRIES))
-    s_cand = core_lo[s_room_c] + rng.u((S, _START_TRIES, 2)) * (core_hi[s_room_c] - core_lo[s_room_c])
-    gd = jnp.sqrt(jnp.sum((s_cand[:, :, None] - goals[None, None]) ** 2, -1))  # [S, T, G]
-    gd = jnp.min(jnp.where(g_active, gd, jnp.inf), -1)
-    first, any_ok = first_true(gd >= spec.min_start_goal_distance)
-    pick = jnp.where(any_ok, first, jnp.argmax(gd, -1))
-    starts_xy = take_rows(s_cand, pick)
-    s_room = take_rows(s_room_c, pick)
-    s_active = jnp.arange(S) < n_starts
-    distance_ok = jnp.all(~s_active | any_ok)
-    yaw = rng.uniform((S,), -jnp.pi, jnp.pi)
+    g_room, goals, g_active, s_room, starts_xy, s_active, distance_ok, yaw = _starts_and_goals(
+        rng, spec, room_logits, core_lo, core_hi, n_starts, n_goals
+    )
 
     # 3. The reserved network: start/goal -> hub of its sub-room; per doorway hub -> crossing -> hub.
-    res_a = [starts_xy, goals]
-    res_b = [hubs[s_room], hubs[g_room]]
-    res_on = [s_active, g_active]
-    if K:
-        p1, p2 = door_pt + c * door_n, door_pt - c * door_n
-        h1, h2 = hubs[room_of(p1)], hubs[room_of(p2)]
-        res_a += [h1, p1, p2]
-        res_b += [p1, p2, h2]
-        res_on += [placed, placed, placed]
-    res_a, res_b, res_on = jnp.concatenate(res_a), jnp.concatenate(res_b), jnp.concatenate(res_on)
+    ends = (starts_xy, goals, s_room, g_room, s_active, g_active)
+    res_a, res_b, res_on = _reserved(ends, hubs, rooms, active, door_pt, door_n, placed, c, K)
 
     # 4. Obstacles: `tries` candidates each; the first that keeps c from the network is kept.
-    T = spec.tries
-    if n_cyl_slots:
-        rad = rng.uniform((n_cyl_slots, T), spec.radius_min, spec.radius_max)
-        half = jnp.maximum(size / 2 - rad[..., None], 0.0)
-        cen = -half + rng.u((n_cyl_slots, T, 2)) * 2 * half
-        d = pt_seg(cen[:, :, None], res_a, res_b) - rad[..., None]  # [n, T, R]
-        ok = jnp.all(~res_on | (d >= c), -1)
-        t, any_ok = first_true(ok)
-        cyl_on = any_ok & (jnp.arange(n_cyl_slots) < n_cyl_req)
-        circles = jnp.where(cyl_on[:, None], jnp.concatenate([take_rows(cen, t), take_rows(rad, t)[:, None]], -1), 0.0)
-    else:
-        circles = jnp.zeros((0, 3), jnp.float32)
-        cyl_on = jnp.zeros((0,), bool)
-    if n_box_slots:
-        sides = rng.uniform((n_box_slots, T, 2), spec.box_side_min, spec.box_side_max)
-        byaw = rng.uniform((n_box_slots, T), 0.0, jnp.pi)
-        half = jnp.maximum(size / 2 - jnp.linalg.norm(sides, axis=-1, keepdims=True) / 2, 0.0)
-        cen = -half + rng.u((n_box_slots, T, 2)) * 2 * half
-        d = seg_box(res_a, res_b, cen[:, :, None], sides[:, :, None] / 2, byaw[..., None])  # [n, T, R]
-        ok = jnp.all(~res_on | (d >= c), -1)
-        t, any_ok = first_true(ok)
-        box_on = any_ok & (jnp.arange(n_box_slots) < n_box_req)
-        corners = box_corners(take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t))  # [n, 4, 2]
-        edges = jnp.concatenate([corners, jnp.roll(corners, -1, axis=-2)], -1)  # [n, 4, 4]
-        box_segs = jnp.where(box_on[:, None, None], edges, 0.0).reshape(-1, 4)
-        rows = jnp.concatenate([take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t)[:, None]], -1)
-        boxes = jnp.where(box_on[:, None], rows, 0.0)
-    else:
-        box_segs = jnp.zeros((0, 4), jnp.float32)
-        box_on = jnp.zeros((0,), bool)
-        boxes = jnp.zeros((0, 5), jnp.float32)
+    res = (res_a, res_b, res_on)
+    circles, cyl_on = _cylinders(rng, spec, size, res, n_cyl_slots, n_cyl_req)
+    box_segs, box_on, boxes = _boxes(rng, spec, size, res, n_box_slots, n_box_req)
 
     # 5. The World, padded to the spec's shapes (extra starts / goals repeat row 0).
     world = pad_world(
@@ -312,6 +254,96 @@ def _build(rng: Uniforms, spec: RoomSpec, density=1.0) -> tuple[World, dict[str,
         "reserved_on": res_on,
     }
     return world, info
+
+
+def _starts_and_goals(rng: Uniforms, spec: RoomSpec, room_logits, core_lo, core_hi, n_starts, n_goals):
+    """Goals, then starts (the farthest-first rule), uniformly in the sub-rooms' cores by core area:
+    (goal rooms, goals, goals on, start rooms, starts, starts on, distance rule held, start yaws)."""
+    S, G = spec.starts_max, spec.goals_max
+    g_room = rng.categorical(room_logits, (G,))
+    goals = core_lo[g_room] + rng.u((G, 2)) * (core_hi[g_room] - core_lo[g_room])
+    g_active = jnp.arange(G) < n_goals
+    s_room_c = rng.categorical(room_logits, (S, _START_TRIES))
+    s_cand = core_lo[s_room_c] + rng.u((S, _START_TRIES, 2)) * (core_hi[s_room_c] - core_lo[s_room_c])
+    gd = jnp.sqrt(jnp.sum((s_cand[:, :, None] - goals[None, None]) ** 2, -1))  # [S, T, G]
+    gd = jnp.min(jnp.where(g_active, gd, jnp.inf), -1)
+    first, any_ok = first_true(gd >= spec.min_start_goal_distance)
+    pick = jnp.where(any_ok, first, jnp.argmax(gd, -1))
+    starts_xy = take_rows(s_cand, pick)
+    s_room = take_rows(s_room_c, pick)
+    s_active = jnp.arange(S) < n_starts
+    distance_ok = jnp.all(~s_active | any_ok)
+    yaw = rng.uniform((S,), -jnp.pi, jnp.pi)
+    return g_room, goals, g_active, s_room, starts_xy, s_active, distance_ok, yaw
+
+
+def _reserved(ends, hubs, rooms, active, door_pt, door_n, placed, c: float, K: int):
+    """The reserved network (a, b, on): start/goal -> hub of its sub-room; per doorway (of K wall
+    slots) hub -> crossing -> hub. `ends`: (starts, goals, their rooms, starts on, goals on)."""
+    starts_xy, goals, s_room, g_room, s_active, g_active = ends
+
+    def room_of(p):  # the active sub-room strictly containing p [..., 2]
+        inside = (
+            active
+            & (p[..., None, 0] > rooms[:, 0])
+            & (p[..., None, 0] < rooms[:, 2])
+            & (p[..., None, 1] > rooms[:, 1])
+            & (p[..., None, 1] < rooms[:, 3])
+        )
+        return jnp.argmax(inside, axis=-1)
+
+    res_a = [starts_xy, goals]
+    res_b = [hubs[s_room], hubs[g_room]]
+    res_on = [s_active, g_active]
+    if K:
+        p1, p2 = door_pt + c * door_n, door_pt - c * door_n
+        h1, h2 = hubs[room_of(p1)], hubs[room_of(p2)]
+        res_a += [h1, p1, p2]
+        res_b += [p1, p2, h2]
+        res_on += [placed, placed, placed]
+    res_a, res_b, res_on = jnp.concatenate(res_a), jnp.concatenate(res_b), jnp.concatenate(res_on)
+    return res_a, res_b, res_on
+
+
+def _cylinders(rng: Uniforms, spec: RoomSpec, size, res, n_cyl_slots: int, n_cyl_req):
+    """The cylinders (rows x, y, r; zero rows off) and which are on: `tries` candidates each, the
+    first that keeps c from the reserved network `res` (a, b, on)."""
+    c, T = spec.clearance, spec.tries
+    res_a, res_b, res_on = res
+    if not n_cyl_slots:
+        return jnp.zeros((0, 3), jnp.float32), jnp.zeros((0,), bool)
+    rad = rng.uniform((n_cyl_slots, T), spec.radius_min, spec.radius_max)
+    half = jnp.maximum(size / 2 - rad[..., None], 0.0)
+    cen = -half + rng.u((n_cyl_slots, T, 2)) * 2 * half
+    d = pt_seg(cen[:, :, None], res_a, res_b) - rad[..., None]  # [n, T, R]
+    ok = jnp.all(~res_on | (d >= c), -1)
+    t, any_ok = first_true(ok)
+    cyl_on = any_ok & (jnp.arange(n_cyl_slots) < n_cyl_req)
+    circles = jnp.where(cyl_on[:, None], jnp.concatenate([take_rows(cen, t), take_rows(rad, t)[:, None]], -1), 0.0)
+    return circles, cyl_on
+
+
+def _boxes(rng: Uniforms, spec: RoomSpec, size, res, n_box_slots: int, n_box_req):
+    """The boxes' edges (4 rows each), which are on, and their rows (x, y, sx, sy, yaw): `tries`
+    candidates each, the first that keeps c from the reserved network `res` (a, b, on)."""
+    c, T = spec.clearance, spec.tries
+    res_a, res_b, res_on = res
+    if not n_box_slots:
+        return jnp.zeros((0, 4), jnp.float32), jnp.zeros((0,), bool), jnp.zeros((0, 5), jnp.float32)
+    sides = rng.uniform((n_box_slots, T, 2), spec.box_side_min, spec.box_side_max)
+    byaw = rng.uniform((n_box_slots, T), 0.0, jnp.pi)
+    half = jnp.maximum(size / 2 - jnp.linalg.norm(sides, axis=-1, keepdims=True) / 2, 0.0)
+    cen = -half + rng.u((n_box_slots, T, 2)) * 2 * half
+    d = seg_box(res_a, res_b, cen[:, :, None], sides[:, :, None] / 2, byaw[..., None])  # [n, T, R]
+    ok = jnp.all(~res_on | (d >= c), -1)
+    t, any_ok = first_true(ok)
+    box_on = any_ok & (jnp.arange(n_box_slots) < n_box_req)
+    corners = box_corners(take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t))  # [n, 4, 2]
+    edges = jnp.concatenate([corners, jnp.roll(corners, -1, axis=-2)], -1)  # [n, 4, 4]
+    box_segs = jnp.where(box_on[:, None, None], edges, 0.0).reshape(-1, 4)
+    rows = jnp.concatenate([take_rows(cen, t), take_rows(sides, t), take_rows(byaw, t)[:, None]], -1)
+    boxes = jnp.where(box_on[:, None], rows, 0.0)
+    return box_segs, box_on, boxes
 
 
 def generate(key: jax.Array, spec: RoomSpec, density=1.0) -> World:

@@ -75,24 +75,7 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     rack_side = jnp.broadcast_to(jnp.stack([ln, d]), (R * K, 2))
 
     # Aisles: R + 1 centre lines along x, then K + 1 along y; (start, end, width, unit normal).
-    k_r, k_s = jnp.arange(R + 1, dtype=jnp.float32), jnp.arange(K + 1, dtype=jnp.float32)
-    ya = jnp.where(
-        k_r == 0, -Ly / 2 + my / 2, jnp.where(k_r == n_r, Ly / 2 - my / 2, -Ly / 2 + my + k_r * (d + a) - a / 2)
-    )
-    xa = jnp.where(
-        k_s == 0, -Lx / 2 + mx / 2, jnp.where(k_s == n_s, Lx / 2 - mx / 2, -Lx / 2 + mx + k_s * (ln + a) - a / 2)
-    )
-    wy = jnp.where((k_r == 0) | (k_r == n_r), my, a)
-    wx = jnp.where((k_s == 0) | (k_s == n_s), mx, a)
-    x_ends = jnp.broadcast_to(jnp.stack([-Lx / 2 + mx / 2, Lx / 2 - mx / 2]), (R + 1, 2))
-    y_ends = jnp.broadcast_to(jnp.stack([-Ly / 2 + my / 2, Ly / 2 - my / 2]), (K + 1, 2))
-    aisle_a = jnp.concatenate([jnp.stack([x_ends[:, 0], ya], -1), jnp.stack([xa, y_ends[:, 0]], -1)])
-    aisle_b = jnp.concatenate([jnp.stack([x_ends[:, 1], ya], -1), jnp.stack([xa, y_ends[:, 1]], -1)])
-    aisle_w = jnp.concatenate([wy, wx])
-    aisle_n = jnp.concatenate(
-        [jnp.tile(jnp.array([[0.0, 1.0]]), (R + 1, 1)), jnp.tile(jnp.array([[1.0, 0.0]]), (K + 1, 1))]
-    )
-    aisle_on = jnp.concatenate([k_r <= n_r, k_s <= n_s])
+    aisle_a, aisle_b, aisle_w, aisle_n, aisle_on = _aisles(R, K, Lx, Ly, mx, my, a, d, ln, n_r, n_s)
     length = jnp.where(aisle_on, jnp.linalg.norm(aisle_b - aisle_a, axis=-1), 0.0)
     cum = jnp.cumsum(length)
 
@@ -108,22 +91,9 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     res_on = jnp.concatenate([aisle_on, con])
 
     # Pallets: axis-aligned boxes off the network and off the racks.
-    P, T = spec.pallets_max, spec.tries
-    n_pal = rng.randint(spec.pallets_min, spec.pallets_max) if P else jnp.int32(0)
-    sides = rng.uniform((P, T, 2), spec.pallet_side_min, spec.pallet_side_max)
-    half = jnp.stack([Lx, Ly]) / 2 - sides / 2
-    cen = -half + rng.u((P, T, 2)) * 2 * half
-    # every network segment runs along an axis (aisle centre lines, connectors across them), so its
-    # distance to an axis-aligned pallet is the gap between two axis-aligned boxes (exact)
-    lo, hi = cen - sides / 2, cen + sides / 2
-    clear = all_clear(
-        lambda a, b: aabb_gap_sq(jnp.minimum(a, b), jnp.maximum(a, b), lo, hi), res_a, res_b, res_on, c * c
-    )  # [P, T]
-    gap = jnp.abs(cen[:, :, None] - rack_c) - (sides[:, :, None] + rack_side) / 2  # [P, T, racks, 2]
-    apart = jnp.all(~rack_full | jnp.any(gap >= 0.0, -1), -1)  # the racks at density 1: pallets do not move with it
-    t, any_ok = first_true(clear & apart)
-    pal_on = any_ok & (jnp.arange(P) < thin_count(n_pal, density))
-    pal_c, pal_s = take_rows(cen, t), take_rows(sides, t)
+    pal_c, pal_s, pal_on, n_pal = _pallets(
+        rng, spec, Lx, Ly, (res_a, res_b, res_on), (rack_c, rack_side, rack_full), density
+    )
 
     # racks, then pallets, packed into the spec's `warehouse_boxes` slots (the shape stays small:
     # the slots of every layout would be 4x what a room holds on average)
@@ -154,3 +124,53 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
         "aisle_width": a,
     }
     return world, info
+
+
+def _aisles(R: int, K: int, Lx, Ly, mx, my, a, d, ln, n_r, n_s):
+    """The aisles' centre lines in the frame: R + 1 along x, then K + 1 along y; (start, end, width,
+    unit normal across, on) of each (n_r rows and n_s sections of racks, d deep, ln long, a apart)."""
+    k_r, k_s = jnp.arange(R + 1, dtype=jnp.float32), jnp.arange(K + 1, dtype=jnp.float32)
+    ya = jnp.where(
+        k_r == 0, -Ly / 2 + my / 2, jnp.where(k_r == n_r, Ly / 2 - my / 2, -Ly / 2 + my + k_r * (d + a) - a / 2)
+    )
+    xa = jnp.where(
+        k_s == 0, -Lx / 2 + mx / 2, jnp.where(k_s == n_s, Lx / 2 - mx / 2, -Lx / 2 + mx + k_s * (ln + a) - a / 2)
+    )
+    wy = jnp.where((k_r == 0) | (k_r == n_r), my, a)
+    wx = jnp.where((k_s == 0) | (k_s == n_s), mx, a)
+    x_ends = jnp.broadcast_to(jnp.stack([-Lx / 2 + mx / 2, Lx / 2 - mx / 2]), (R + 1, 2))
+    y_ends = jnp.broadcast_to(jnp.stack([-Ly / 2 + my / 2, Ly / 2 - my / 2]), (K + 1, 2))
+    aisle_a = jnp.concatenate([jnp.stack([x_ends[:, 0], ya], -1), jnp.stack([xa, y_ends[:, 0]], -1)])
+    aisle_b = jnp.concatenate([jnp.stack([x_ends[:, 1], ya], -1), jnp.stack([xa, y_ends[:, 1]], -1)])
+    aisle_w = jnp.concatenate([wy, wx])
+    aisle_n = jnp.concatenate(
+        [jnp.tile(jnp.array([[0.0, 1.0]]), (R + 1, 1)), jnp.tile(jnp.array([[1.0, 0.0]]), (K + 1, 1))]
+    )
+    aisle_on = jnp.concatenate([k_r <= n_r, k_s <= n_s])
+    return aisle_a, aisle_b, aisle_w, aisle_n, aisle_on
+
+
+def _pallets(rng: Uniforms, spec: RoomSpec, Lx, Ly, network, racks, density):
+    """The pallets in the frame: `tries` candidates each, the first that keeps c from the `network`
+    (res_a, res_b, res_on) and overlaps none of the `racks` (centres, sides, full at density 1).
+    Returns their centres, sides, which are placed, and the number requested."""
+    c = spec.clearance
+    res_a, res_b, res_on = network
+    rack_c, rack_side, rack_full = racks
+    P, T = spec.pallets_max, spec.tries
+    n_pal = rng.randint(spec.pallets_min, spec.pallets_max) if P else jnp.int32(0)
+    sides = rng.uniform((P, T, 2), spec.pallet_side_min, spec.pallet_side_max)
+    half = jnp.stack([Lx, Ly]) / 2 - sides / 2
+    cen = -half + rng.u((P, T, 2)) * 2 * half
+    # every network segment runs along an axis (aisle centre lines, connectors across them), so its
+    # distance to an axis-aligned pallet is the gap between two axis-aligned boxes (exact)
+    lo, hi = cen - sides / 2, cen + sides / 2
+    clear = all_clear(
+        lambda a, b: aabb_gap_sq(jnp.minimum(a, b), jnp.maximum(a, b), lo, hi), res_a, res_b, res_on, c * c
+    )  # [P, T]
+    gap = jnp.abs(cen[:, :, None] - rack_c) - (sides[:, :, None] + rack_side) / 2  # [P, T, racks, 2]
+    apart = jnp.all(~rack_full | jnp.any(gap >= 0.0, -1), -1)  # the racks at density 1: pallets do not move with it
+    t, any_ok = first_true(clear & apart)
+    pal_on = any_ok & (jnp.arange(P) < thin_count(n_pal, density))
+    pal_c, pal_s = take_rows(cen, t), take_rows(sides, t)
+    return pal_c, pal_s, pal_on, n_pal
