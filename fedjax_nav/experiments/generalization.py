@@ -127,6 +127,21 @@ def _robust(ps, fams: list[str], echo: Callable[[str], None]):
         return None
 
 
+def _markdown(sweep: Sweep, name: str, t, g, fams: list[str], rb) -> list[str]:
+    """The report's markdown lines: the goal check `g`, every point of `t`, and the IQM table `rb`
+    (None: rliable not installed)."""
+    md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
+    md += [f"Goal: {gz.goal_text(sweep.goal)} (the sweep file's `goal:`).", ""]
+    md += [md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
+    md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
+    md += ["mean [95% bootstrap interval over training seeds].", ""]
+    md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
+    if rb is not None:
+        md += ["## IQM and probability of improvement", "", gz.ROBUST_NOTE, ""]
+        md += [md_table(gz.robust_readable(rb)) if len(rb) else "(no point with every family evaluated)", ""]
+    return md
+
+
 def report(
     sweep: Sweep,
     out: str | Path,
@@ -156,17 +171,10 @@ def report(
     files = tables(name)
     for fname, df in zip(files, (t, ps, g, nets)):
         rundir.atomic_write(out / fname, lambda p, df=df: df.to_csv(p, index=False))
-    md = [f"# {name} (docs/generalization.md)", "", "## The goal, per procedurally trained point", ""]
-    md += [f"Goal: {gz.goal_text(sweep.goal)} (the sweep file's `goal:`).", ""]
-    md += [md_table(g) if len(g) else "(none yet)", "", "## Every point", ""]
-    md += ["Success: training (last 25 episodes) and arena as mean +- std over seeds; held-out families as"]
-    md += ["mean [95% bootstrap interval over training seeds].", ""]
-    md += [md_table(gz.readable(t, fams)) if len(t) else "(no finished point)", ""]
     rb = _robust(ps, fams, echo)
     if rb is not None:
         rundir.atomic_write(out / f"{name}_iqm.csv", lambda p: rb.to_csv(p, index=False))
-        md += ["## IQM and probability of improvement", "", gz.ROBUST_NOTE, ""]
-        md += [md_table(gz.robust_readable(rb)) if len(rb) else "(no point with every family evaluated)", ""]
+    md = _markdown(sweep, name, t, g, fams, rb)
     rundir.atomic_write(out / f"{name}.md", lambda p: Path(p).write_text("\n".join(md)))
     curves, probe = gz.probe_curves(sweep, points), f"{sweep.name}_probe"  # the probe ran in training: no suite
     if len(curves):
