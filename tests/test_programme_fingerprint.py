@@ -4,10 +4,13 @@ thesis rule with an attack, and procedural rooms with the probe and the robot mo
 thesis method is checked the same way by tests/test_trainer.py.
 
 A refactoring of the trainer, the aggregators or the env builder must leave every one of these
-hashes as it was. The hashes hold for one jax/XLA version on one kind of CPU: recorded with the
-versions in `tests/data/programme_fingerprints.json`; with other versions the test is skipped and
-says so. To record anew (only when a change is meant to change the numbers, and say so in the
-commit): `FEDJAX_NAV_RECORD_FINGERPRINTS=1 pytest -p no:xdist tests/test_programme_fingerprint.py`.
+hashes as it was. The hashes hold for one jax/XLA version on one kind of CPU (XLA compiles for the
+host's instruction set, and another set rounds differently): `tests/data/programme_fingerprints.json`
+holds one record per (versions, CPU kind), each recorded from the code before a refactoring; on a
+machine with no record the test is skipped and says so, before training anything. To record for
+this machine (from a checkout of the code before your change, or anew when a change is meant to
+change the numbers, and say so in the commit):
+`FEDJAX_NAV_RECORD_FINGERPRINTS=1 pytest -p no:xdist tests/test_programme_fingerprint.py`.
 """
 
 from __future__ import annotations
@@ -64,7 +67,37 @@ def versions() -> dict:
         "jaxlib": jaxlib.__version__,
         "flax": flax.__version__,
         "machine": platform.machine(),
+        "cpu": cpu_kind(),
     }
+
+
+def cpu_kind() -> str:
+    """The CPU as XLA's code generation sees it: vendor, family, model and a digest of the
+    instruction-set flags (/proc/cpuinfo; the platform's processor name elsewhere)."""
+    info = Path("/proc/cpuinfo")
+    if not info.exists():
+        return platform.processor() or "unknown"
+    fields = {}
+    for line in info.read_text().splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    flags = hashlib.sha1(" ".join(sorted(fields.get("flags", "").split())).encode()).hexdigest()[:12]
+    vendor, family, model = (fields.get(k, "?") for k in ("vendor_id", "cpu family", "model"))
+    return f"{vendor} family {family} model {model} flags {flags}"
+
+
+def record_for(data: dict) -> dict | None:
+    """The record of `data` (a fingerprint file) made with this machine's versions and CPU kind."""
+    return next((r for r in data["records"] if r["versions"] == versions()), None)
+
+
+def skip_unless_recorded(data: dict, what: str) -> dict:
+    """This machine's record of `data`, or skip naming the kinds recorded."""
+    rec = record_for(data)
+    if rec is None:
+        kinds = "; ".join(str(r["versions"]) for r in data["records"])
+        pytest.skip(f"{what}: no fingerprints recorded for {versions()} (recorded: {kinds})")
+    return rec
 
 
 def _bytes(x) -> bytes:
@@ -93,21 +126,20 @@ def fingerprint(case: str) -> str:
 
 @pytest.fixture(scope="module")
 def recorded():
-    data = json.loads(FILE.read_text()) if FILE.exists() else {"versions": versions(), "cases": {}}
+    data = json.loads(FILE.read_text()) if FILE.exists() else {"records": []}
+    if RECORD and record_for(data) is None:
+        data["records"].append({"versions": versions(), "cases": {}})
     yield data
     if RECORD:
         FILE.parent.mkdir(exist_ok=True)
-        data["versions"] = versions()
         FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_programme_is_bitwise_as_recorded(case, recorded):
-    got = fingerprint(case)
     if RECORD:
-        recorded["cases"][case] = got
+        record_for(recorded)["cases"][case] = fingerprint(case)
         return
-    if recorded["versions"] != versions():
-        pytest.skip(f"fingerprints recorded with {recorded['versions']}, this is {versions()}")
-    assert case in recorded["cases"], f"no fingerprint recorded for {case!r} (see the module docstring)"
-    assert got == recorded["cases"][case], f"{case}: the programme's numbers changed"
+    rec = skip_unless_recorded(recorded, str(FILE.name))
+    assert case in rec["cases"], f"no fingerprint recorded for {case!r} (see the module docstring)"
+    assert fingerprint(case) == rec["cases"][case], f"{case}: the programme's numbers changed"

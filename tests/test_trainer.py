@@ -466,10 +466,9 @@ def test_every_thesis_run_is_bitwise_what_it_was_before_the_refactorings(name):
     CPU kind, else skipped and said)."""
     import json
 
-    from test_programme_fingerprint import digest, versions
+    from test_programme_fingerprint import digest, skip_unless_recorded
 
     data = json.loads((Path(__file__).parent / "data" / "trainer_run_fingerprints.json").read_text())
-    if data["versions"] != versions():
-        pytest.skip(f"fingerprints recorded with {data['versions']}, this is {versions()}")
+    rec = skip_unless_recorded(data, "trainer_run_fingerprints.json")
     r = run_thesis(name)
-    assert digest(r.metrics, r.states) == data["cases"][name], f"{name}: the programme's numbers changed"
+    assert digest(r.metrics, r.states) == rec["cases"][name], f"{name}: the programme's numbers changed"
