@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "fedjax_nav"
 # Lowest first. Packages in one layer do not import each other.
 LAYERS = [
     ["messages"],  # the error lines' helpers, standard library only
-    ["methods", "robots", "worlds", "configs"],
+    ["methods", "robots", "worlds", "configs", "learner_table"],
     ["env"],
     ["agents", "federated"],
     ["config"],

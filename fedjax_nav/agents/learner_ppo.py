@@ -66,7 +66,7 @@ def memory(nets: OnPolicyNets) -> ppo.Hidden:
     return ppo.initial_hidden(nets.ppo)
 
 
-def explore(nets: OnPolicyNets, state, obs, key, hp, epsilon, memory, first):
+def explore(nets: OnPolicyNets, state, obs, key, hp, carry, memory, first):
     step, hidden = ppo.act(nets.ppo, state, obs, key, memory, first)
     return step.action, (step.raw_action, step.log_prob), hidden
 

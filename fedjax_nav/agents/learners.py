@@ -2,10 +2,12 @@
 (as `federated.aggregators.RULES` is for the servers' rules). The trainer calls these functions and
 never looks at a learner's name (docs/learners.md, "The trainer's side").
 
-    learner = LEARNERS[cfg.learner]
+    learner = get(cfg.learner)                         # its row in fedjax_nav.learner_table, resolved
     nets = learner.make_nets(config.values(cfg))     # static: modules, batch and loop sizes
     state = learner.init(nets, key, obs_size, hp)      # one agent
-    action, extra, memory = learner.explore(nets, state, obs, key, hp, epsilon, memory, first)
+    carry = learner.explore_init(hp)                   # the exploration carry (DDPG: epsilon), per seed
+    action, extra, memory = learner.explore(nets, state, obs, key, hp, carry, memory, first)
+    carry = learner.explore_next(carry, hp)            # after every step
     storage = learner.storage(nets, obs_size, rows)    # one buffer: replay rows, or a rollout
     storage = learner.store(nets, storage, record, g, rows, hp)
     state, losses = learner.update(nets, state, storage, key, g, rows, hp)    # where learner.due(...)
@@ -34,8 +36,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fedjax_nav import learner_table
 from fedjax_nav.agents import buffer as rb
-from fedjax_nav.agents import ddpg, ppo, sac, td3
+from fedjax_nav.agents import ddpg, sac, td3
 from fedjax_nav.agents import learner_ppo as lp
 from fedjax_nav.agents.networks import Critic
 from fedjax_nav.agents.networks_extra import SquashedGaussianActor
@@ -57,25 +60,31 @@ class Record(NamedTuple):
 
 
 class Learner(NamedTuple):
-    """A learner as data plus pure functions (the module docstring gives the call shapes)."""
+    """A learner as data plus pure functions (the module docstring gives the call shapes). The
+    facts of the learner's row (fedjax_nav.learner_table: name, on_policy, shared, targets) are
+    filled in by `get`; an implementation leaves them at their defaults."""
 
-    name: str
-    on_policy: bool  # learns from its own policy's rollout: no buffer to share (config.ON_POLICY_LEARNERS)
     metrics: tuple[str, ...]  # the losses `update` reports: the trainer's per-network metrics
     make_nets: Callable  # (values: dict of config values by dotted name) -> nets (static)
     init: Callable  # (nets, key, obs_size, hp) -> state
     memory: Callable  # (nets) -> one environment's carry at an episode start, or None (no memory)
-    explore: Callable  # (nets, state, obs, key, hp, epsilon, memory, first) -> (action, extra, memory)
+    explore: Callable  # (nets, state, obs, key, hp, carry, memory, first) -> (action, extra, memory)
     policy: Callable  # (state) -> the greedy policy's parameters (probe, evaluation, export)
     greedy: Callable  # (nets, policy, obs, memory, first) -> (action, memory)
     storage: Callable  # (nets, obs_size, rows) -> one empty buffer
     store: Callable  # (nets, storage, record, g, rows, hp) -> storage
     due: Callable  # (nets, g, rows, hp) -> bool[]: an update event after step g
     update: Callable  # (nets, state, storage, key, g, rows, hp) -> (state, {metric: f32[]})
-    shared_fields: tuple[str, ...]  # the module's SHARED: what a federated round averages
-    target_fields: tuple[str, ...]  # the module's TARGETS: averaged too with fed.include_targets
     targets_due: Callable | None = None  # (nets, g, rows, hp) -> bool[]: a separate target update (DDPG)
     targets: Callable | None = None  # (nets, state, hp) -> state
+    # exploration that is not the agent's: a carry of one seed, stepped once per environment step
+    explore_init: Callable = lambda hp: ()  # (hp) -> the carry at step 0
+    explore_next: Callable = lambda carry, hp: carry  # (carry, hp) -> the carry after a step
+    explore_metric: Callable = lambda carry: jnp.float32(0.0)  # (carry) -> metrics.csv's epsilon column
+    name: str = ""  # the row's
+    on_policy: bool = False  # the row's: learns from its own policy's rollout, no buffer to share
+    shared_fields: tuple[str, ...] = ()  # the row's `shared`: what a federated round averages
+    target_fields: tuple[str, ...] = ()  # the row's `targets`: averaged too with fed.include_targets
 
     def shared(self, state, include_targets: bool = False) -> dict:
         """What a client sends in a federated round: its SHARED fields (and TARGETS if asked)."""
@@ -228,14 +237,16 @@ OFF_POLICY_METRICS = ("critic_loss", "actor_loss", "q")
 
 
 def _ddpg_explore(nets, state, obs, key, hp, epsilon, memory, first):
+    """Epsilon-greedy: `epsilon` is DDPG's exploration carry (ddpg.epsilon_start, times
+    ddpg.epsilon_decay after every step)."""
     return ddpg.epsilon_greedy(key, ddpg.act(nets, state.actor, obs), epsilon), (), memory
 
 
-def _td3_explore(nets, state, obs, key, hp, epsilon, memory, first):
+def _td3_explore(nets, state, obs, key, hp, carry, memory, first):
     return td3.act(nets, state.actor, obs, key, hp["td3.expl_noise"]), (), memory
 
 
-def _sac_explore(nets, state, obs, key, hp, epsilon, memory, first):
+def _sac_explore(nets, state, obs, key, hp, carry, memory, first):
     return sac.act(nets, state.actor, obs, key), (), memory
 
 
@@ -243,15 +254,13 @@ def _ddpg_targets_due(nets, g, rows: int, hp):
     return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.target_every"] == 0)
 
 
-def _replay_learner(name: str, actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
+def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
     """An off-policy learner: `actor_cls` and the critic at the ddpg.* network sizes, replay rows
     (`_replay`, `_store_replay`, `_due_replay`), `gradient_steps` calls of `grad_step` per update
     event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
-    explore, shared_fields, target_fields; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
+    explore; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
     metrics = fields.pop("metrics", OFF_POLICY_METRICS)
     return Learner(
-        name=name,
-        on_policy=False,
         metrics=metrics,
         make_nets=_off_policy_nets(actor_cls),
         memory=_no_memory,
@@ -266,43 +275,35 @@ def _replay_learner(name: str, actor_cls, grad_step: Callable, greedy: Callable,
 
 
 DDPG = _replay_learner(
-    "ddpg",
     ddpg.Actor,
     _ddpg_step,
     ddpg.act,
     init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
     explore=_ddpg_explore,
-    shared_fields=("actor", "critic"),
-    target_fields=("actor_targ", "critic_targ"),
     targets_due=_ddpg_targets_due,
     targets=lambda nets, state, hp: ddpg.update_targets(state, hp["ddpg.rho"]),
+    explore_init=lambda hp: jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32),
+    explore_next=lambda epsilon, hp: epsilon * hp["ddpg.epsilon_decay"],
+    explore_metric=lambda epsilon: epsilon,
 )
 TD3 = _replay_learner(
-    "td3",
     ddpg.Actor,
     _td3_step,
     td3.greedy,
     init=lambda nets, key, obs_size, hp: td3.init(nets, key, obs_size),
     explore=_td3_explore,
-    shared_fields=td3.SHARED,
-    target_fields=td3.TARGETS,
 )
 SAC_METRICS = (*OFF_POLICY_METRICS, "alpha", "entropy")
 SAC = _replay_learner(
-    "sac",
     SquashedGaussianActor,
     _sac_step,
     sac.greedy,
     init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp["sac.init_alpha"]),
     explore=_sac_explore,
-    shared_fields=sac.SHARED,
-    target_fields=sac.TARGETS,
     metrics=SAC_METRICS,
 )
 
 PPO = Learner(
-    name="ppo",
-    on_policy=True,
     metrics=lp.METRICS,
     make_nets=lp.make_nets,
     init=lp.init,
@@ -314,15 +315,13 @@ PPO = Learner(
     store=lp.store,
     due=lp.due,
     update=lp.update,
-    shared_fields=ppo.SHARED,
-    target_fields=ppo.TARGETS,
 )
-
-LEARNERS: dict[str, Learner] = {x.name: x for x in (DDPG, TD3, SAC, PPO)}
 
 
 def get(name: str) -> Learner:
-    try:
-        return LEARNERS[name]
-    except KeyError:
-        raise ValueError(f"unknown learner {name!r}; allowed: {', '.join(LEARNERS)}") from None
+    """The learner of a row of fedjax_nav.learner_table (a ValueError naming the allowed ones),
+    with the row's facts filled in."""
+    row = learner_table.get(name)
+    return row.learner()._replace(
+        name=row.name, on_policy=row.on_policy, shared_fields=row.shared, target_fields=row.targets
+    )

@@ -20,8 +20,8 @@ The policy is the tanh-squashed Gaussian on the action box (distributions.py; br
 same) with a state-independent log-std: the rollout keeps each draw's raw (pre-tanh) action, on
 which the log-density is exact. H is its one-sample entropy estimate. Every field of `HParams`
 and `init`'s init_log_std are traced; Nets fix the shapes and loops (hidden sizes, GRU, epochs,
-minibatches). Federated: `SHARED` (actor, log_std, value) is what a round averages; the Adam
-moments stay local.
+minibatches). Federated: a round averages actor (with its observation statistics when normalised), log_std
+and value (PPO's row of fedjax_nav/learner_table.py); the Adam moments stay local.
 
 Observation normalisation (`make_nets(normalize_obs=True)`; docs/learners.md): the actor's variable
 dict holds, beside "params", a collection `NORM` with the running statistics of the observations
@@ -49,8 +49,6 @@ from fedjax_nav.agents import distributions as dist
 from fedjax_nav.agents import normalize
 from fedjax_nav.agents.networks_extra import MeanNet, RecurrentMLP, ValueNet
 
-SHARED = ("actor", "log_std", "value")  # "actor" carries the observation statistics (NORM) when normalised
-TARGETS = ()
 NORM = "obs_norm"  # the actor's variable collection of observation statistics (normalize.moments)
 _ADAM = optax.scale_by_adam()
 

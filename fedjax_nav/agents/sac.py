@@ -15,9 +15,9 @@ target entropy -action_size is for the box [0, 1] x [-1, 1]. The alpha loss's gr
 is alpha (H - target_entropy) with H the batch's entropy estimate: above the target the
 temperature falls. Every field of `HParams` and `init`'s init_alpha are traced; Nets fix shapes.
 
-Federated: `SHARED` (actor, critics, log_alpha) is what a round averages (log_alpha: the
-temperature belongs with the policy whose entropy it tunes); `TARGETS` only with
-`fed.include_targets`; the Adam moments stay local.
+Federated: a round averages actor, critics and log_alpha (the temperature belongs with the policy
+whose entropy it tunes), critics_targ only with `fed.include_targets`: SAC's row of
+fedjax_nav/learner_table.py; the Adam moments stay local.
 """
 
 from __future__ import annotations
@@ -42,9 +42,6 @@ from fedjax_nav.agents.offpolicy import (
     td_target,
 )
 from fedjax_nav.agents.offpolicy import TwinNets as Nets
-
-SHARED = ("actor", "critics", "log_alpha")
-TARGETS = ("critics_targ",)
 
 
 @struct.dataclass

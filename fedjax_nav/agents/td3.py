@@ -15,8 +15,8 @@ in units of max_action. The actor is networks.Actor, DDPG's, so `greedy` and exp
 Adam as `optax.scale_by_adam()` with the learning rates applied by hand: every field of `HParams`
 is traced (a sweep over them compiles once); the Nets fix shapes.
 
-Federated: `SHARED` (actor, critics) is what a round averages; `TARGETS` (the `_targ` copies)
-only when targets are averaged too (`fed.include_targets`); the Adam moments stay local.
+Federated: what a round averages (actor, critics; the `_targ` copies only with `fed.include_targets`)
+is TD3's row of fedjax_nav/learner_table.py; the Adam moments stay local.
 """
 
 from __future__ import annotations
@@ -40,9 +40,6 @@ from fedjax_nav.agents.offpolicy import (
     td_target,
 )
 from fedjax_nav.agents.offpolicy import TwinNets as Nets
-
-SHARED = ("actor", "critics")
-TARGETS = ("actor_targ", "critics_targ")
 
 
 @struct.dataclass

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field, fields
 
+from fedjax_nav.learner_table import NAMES as LEARNERS  # the `learner` choices: the learner table's names
 from fedjax_nav.methods import METHODS as _METHOD_TABLE
 from fedjax_nav.robots import ROBOT_MODELS, RobotConfig, robot_problem  # noqa: F401  (the `robot` section)
 
@@ -43,10 +44,6 @@ ROOM_FAMILIES = (
     "corridors",
     "fixed",
 )
-# The `learner` choices and those that learn on-policy (no replay buffer to share), kept equal to
-# fedjax_nav.agents.learners.LEARNERS by tests/test_learner_trainer.py (config does not import jax).
-LEARNERS = ("ddpg", "td3", "sac", "ppo")
-ON_POLICY_LEARNERS = ("ppo",)
 
 
 class ConfigError(ValueError):
@@ -413,7 +410,6 @@ __all__ = [
     "ATTACKS",
     "LEARNERS",
     "METHODS",
-    "ON_POLICY_LEARNERS",
     "ROBOT_MODELS",
     "ROBUST_AGGREGATORS",
     "ROOM_FAMILIES",
