@@ -184,12 +184,13 @@ def test_soft_fedavg_averages_exactly_the_shared_fields(runs, learner):
 
 def _changed(hp, names):
     """hp with every name in `names` moved to another valid value."""
-    out = dict(hp)
+    flat = hp.to_flat()
+    out = {}
     for k in names:
-        v = np.asarray(hp[k])
+        v = np.asarray(flat[k])
         new = v + 1 if v.dtype.kind == "i" else 0.5 * v + 0.01
         out[k] = jnp.asarray(-0.5 if k == "ppo.init_log_std" else new, v.dtype)
-    return out
+    return hp.replace_flat(out)
 
 
 def _own_traced(learner: str):
@@ -217,7 +218,7 @@ def test_the_program_reads_every_traced_hyperparameter_of_the_learner(runs, lear
 
     closed = jax.make_jaxpr(init_and_train)(hp)
     used = {v for eqn in closed.jaxpr.eqns for v in eqn.invars if hasattr(v, "aval") and not hasattr(v, "val")}
-    unused = {n for n, v in zip(sorted(hp), closed.jaxpr.invars) if v not in used}
+    unused = {n for n, v in zip(hp.to_flat(), closed.jaxpr.invars) if v not in used}
     assert not unused & set(_own_traced(learner)), sorted(unused & set(_own_traced(learner)))
 
 
@@ -233,7 +234,7 @@ def test_ppo_rollout_keeps_a_timeout_apart_and_bootstraps_there(runs):
     assert np.all(reset[:, 0]) and np.all(reset[:, T])
     assert not np.allclose(ro.next_obs[:, T - 1], ro.obs[:, T])  # s' at the time-out is where the robot stood
     agents = jax.tree.map(lambda x: x[0], r.states.agents)
-    g = float(r.hp["ppo.gamma"])
+    g = float(r.hp.ppo.gamma)
     for k in range(tr.n_nets):
         state = jax.tree.map(lambda x, k=k: x[k], agents)
         rollout = jax.tree.map(lambda x, k=k: jnp.asarray(x[k]), ro)

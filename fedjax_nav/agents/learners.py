@@ -13,8 +13,8 @@ never looks at a learner's name (docs/learners.md, "The trainer's side").
     state, losses = learner.update(nets, state, storage, key, g, rows, hp)    # where learner.due(...)
 
 Every function is for ONE agent, ONE buffer or ONE environment, unbatched (the trainer adds agents,
-environments and seeds with vmap). `hp` is the trainer's HParams (traced config values by dotted
-name: each learner reads its own section and the shared off-policy ones of `ddpg.*`); `g` is the
+environments and seeds with vmap). `hp` is the trainer's HParams (config.traced: the traced config
+values, `hp.td3.tau`; each learner reads its own section and the shared off-policy ones of `hp.ddpg`); `g` is the
 global step, an unbatched i32 (the gates stay real conds); `rows` (static) is how many rows one
 buffer receives per step. `record` is a `Record` with a leading [rows] axis.
 
@@ -124,7 +124,7 @@ def _off_policy_nets(actor_cls):
 
 def capacity(nets: OffPolicyNets, hp) -> jax.Array:
     """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
-    return jnp.minimum(hp["ddpg.buffer_size"], nets.buffer_rows)
+    return jnp.minimum(hp.ddpg.buffer_size, nets.buffer_rows)
 
 
 def _replay(nets, obs_size: int, rows: int) -> rb.Transition | rb.EpisodeRows:
@@ -159,7 +159,7 @@ def _ready(nets, g, rows: int):
 
 def _due_replay(nets, g, rows: int, hp):
     """Every ddpg.train_every steps once the buffer holds a batch."""
-    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.train_every"] == 0)
+    return _ready(nets, g, rows) & ((g + 1) % hp.ddpg.train_every == 0)
 
 
 def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
@@ -171,13 +171,13 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
         count, cap, n = (g + 1) * rows, capacity(nets, hp), nets.gradient_steps
 
         def sample(k):
-            return sample_batch(nets, buf, k, count, cap, rows, hp["ddpg.gamma"])
+            return sample_batch(nets, buf, k, count, cap, rows, hp.ddpg.gamma)
 
         def one(state, k, i):
             state, losses = grad_step(nets, state, sample, k, hp, i)
             return state, {m: losses[m] for m in metrics}
 
-        index = ((g + 1) // hp["ddpg.train_every"] - 1) * n  # update events before this one x gradient steps
+        index = ((g + 1) // hp.ddpg.train_every - 1) * n  # update events before this one x gradient steps
         if n == 1:
             return one(state, key, index)
         steps = (jax.random.split(key, n), index + jnp.arange(n, dtype=jnp.int32))
@@ -190,11 +190,7 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
 def _ddpg_step(nets, state, sample, key, hp, i):
     b = sample(key)
     batch = rb.Transition(b.obs, b.action, b.reward, b.next_obs, b.done)
-    return ddpg.update(nets, state, batch, b.discount, hp["ddpg.lr"])  # discount: gamma per row, gamma^k n-step
-
-
-def _td3_hp(hp) -> td3.HParams:
-    return td3.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["td3.tau"], hp["td3.policy_noise"], hp["td3.noise_clip"])
+    return ddpg.update(nets, state, batch, b.discount, hp.ddpg.lr)  # discount: gamma per row, gamma^k n-step
 
 
 def _split_batch(sample, key):
@@ -205,17 +201,13 @@ def _split_batch(sample, key):
 
 def _td3_step(nets, state, sample, key, hp, i):
     batch, k_noise = _split_batch(sample, key)
-    actor_step = i % hp["td3.policy_delay"] == 0  # the policy delay, from the unbatched step counter
-    return td3.update(nets, state, batch, k_noise, _td3_hp(hp), actor_step)
-
-
-def _sac_hp(hp) -> sac.HParams:
-    return sac.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["sac.alpha_lr"], hp["sac.tau"], hp["sac.target_entropy"])
+    actor_step = i % hp.td3.policy_delay == 0  # the policy delay, from the unbatched step counter
+    return td3.update(nets, state, batch, k_noise, hp, actor_step)
 
 
 def _sac_step(nets, state, sample, key, hp, i):
     batch, k_step = _split_batch(sample, key)
-    return sac.update(nets, state, batch, k_step, _sac_hp(hp))
+    return sac.update(nets, state, batch, k_step, hp)
 
 
 def _no_memory(nets):
@@ -243,7 +235,7 @@ def _ddpg_explore(nets, state, obs, key, hp, epsilon, memory, first):
 
 
 def _td3_explore(nets, state, obs, key, hp, carry, memory, first):
-    return td3.act(nets, state.actor, obs, key, hp["td3.expl_noise"]), (), memory
+    return td3.act(nets, state.actor, obs, key, hp.td3.expl_noise), (), memory
 
 
 def _sac_explore(nets, state, obs, key, hp, carry, memory, first):
@@ -251,7 +243,7 @@ def _sac_explore(nets, state, obs, key, hp, carry, memory, first):
 
 
 def _ddpg_targets_due(nets, g, rows: int, hp):
-    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.target_every"] == 0)
+    return _ready(nets, g, rows) & ((g + 1) % hp.ddpg.target_every == 0)
 
 
 def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
@@ -281,9 +273,9 @@ DDPG = _replay_learner(
     init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
     explore=_ddpg_explore,
     targets_due=_ddpg_targets_due,
-    targets=lambda nets, state, hp: ddpg.update_targets(state, hp["ddpg.rho"]),
-    explore_init=lambda hp: jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32),
-    explore_next=lambda epsilon, hp: epsilon * hp["ddpg.epsilon_decay"],
+    targets=lambda nets, state, hp: ddpg.update_targets(state, hp.ddpg.rho),
+    explore_init=lambda hp: jnp.asarray(hp.ddpg.epsilon_start, jnp.float32),
+    explore_next=lambda epsilon, hp: epsilon * hp.ddpg.epsilon_decay,
     explore_metric=lambda epsilon: epsilon,
 )
 TD3 = _replay_learner(
@@ -298,7 +290,7 @@ SAC = _replay_learner(
     SquashedGaussianActor,
     _sac_step,
     sac.greedy,
-    init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp["sac.init_alpha"]),
+    init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp.sac.init_alpha),
     explore=_sac_explore,
     metrics=SAC_METRICS,
 )

@@ -103,13 +103,13 @@ def _expected_actor(cfg, obs_size: int):
         nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
         return jax.eval_shape(nets.actor.init, jax.random.key(0), jnp.zeros((obs_size,)))
     from fedjax_nav.agents import learners
-    from fedjax_nav.config import traced_fields, values
+    from fedjax_nav.config import traced, values
 
     learner = learners.get(cfg.learner)
     nets = learner.make_nets(values(cfg))
     # only shapes are asked: every traced value as an f32 scalar (evaluation does not import
     # training, which builds the real HParams)
-    hp = {name: jax.ShapeDtypeStruct((), jnp.float32) for name in traced_fields()}
+    hp = traced.shapes()
     return jax.eval_shape(lambda k, h: learner.policy(learner.init(nets, k, obs_size, h)), jax.random.key(0), hp)
 
 

@@ -242,7 +242,7 @@ class Trainer:
             warm = jax.random.uniform(
                 jax.random.fold_in(k_act, 1), actions.shape, minval=ACTION_LOW, maxval=ACTION_HIGH
             )
-            actions = jnp.where(g < hp["ddpg.random_steps"], warm, actions)
+            actions = jnp.where(g < hp.ddpg.random_steps, warm, actions)
         env_keys = jax.random.split(k_env, self.num_envs)
         obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
             env_keys, state.env_state, actions, env_params
@@ -287,7 +287,7 @@ class Trainer:
             outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
         fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
-            fed_now = (g + 1) % hp["fed.period"] == 0
+            fed_now = (g + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
         out = StepMetrics(
             reward=mean_reward,
@@ -324,7 +324,7 @@ class Trainer:
             state = state.replace(bank=self.rooms.score(state.bank, hp, sums.env_goals, sums.env_attempts))
         fed_end, fs = jnp.int32(0), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
-            fed_now = (ep + 1) % hp["fed.period"] == 0
+            fed_now = (ep + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
         metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
