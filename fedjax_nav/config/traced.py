@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fedjax_nav.config import SECTIONS, Config, field_info, get, traced_fields
+from fedjax_nav.config.schema import SECTIONS, Config, field_info, get, traced_fields
 
 
 def dtype(name: str):

@@ -9,7 +9,7 @@ from collections.abc import Collection
 from dataclasses import fields
 from typing import Any
 
-from fedjax_nav.config import (
+from fedjax_nav.config.schema import (
     ROOM_FAMILIES,
     SECTIONS,
     TOP_LEVEL,
