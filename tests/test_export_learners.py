@@ -1,4 +1,4 @@
-"""`fedjax-nav export` of the learners beside DDPG (deploy/export.py's EXPORTS): SAC's and
+"""`fedjax-nav export` of the learners beside DDPG (deploy/export.py's actor_kind): SAC's and
 feed-forward PPO's squashed mean, recurrent PPO's GRU with its hidden state, each PPO kind also
 with its observation normaliser (ppo.normalize_obs), in numpy (policy.py's `Policy`) and ONNX,
 against the learner's own `greedy` (agents.learners).
