@@ -7,6 +7,7 @@ with traced fields, and `HParams`, a struct of those section structs.
     hp.to_flat()                       # {"ddpg.gamma": f32[], ...}: sweeps stack and compare by name
     HParams.from_flat(flat)            # back
     HParams().replace_flat({"td3.tau": 0.25})   # the config's defaults (Python scalars), one value changed
+    hp | {"fed.tau": 1.0}              # the same as replace_flat
 
 A struct is a pytree (jit, vmap, shardings take it as it is); each leaf is a scalar, or [rows] when a
 sweep batches it (training.hparams). The agents read these attributes duck-typed (the agents layer
@@ -87,6 +88,7 @@ HParams = struct.dataclass(
             "to_flat": _flat,
             "from_flat": _from_flat,
             "replace_flat": _replace_flat,
+            "__or__": _replace_flat,  # hp | {"fed.tau": x}, as the dict it replaced
         },
     )
 )
