@@ -235,7 +235,7 @@ def test_an_accepted_integer_fits_int32_and_reaches_the_program_exactly(key, n, 
         return
     value = config.get(cfg, key)
     assert -(2**31) <= value < 2**31, (key, value)
-    hp = hparams_from_config(cfg)
+    hp = hparams_from_config(cfg).to_flat()
     if key in hp:
         assert int(hp[key]) == value and hp[key].dtype == np.int32, (key, value, hp[key])
 
@@ -255,6 +255,6 @@ def test_an_accepted_float_is_finite_in_float32(key, v, sign):
         return
     value = config.get(cfg, key)
     assert np.isfinite(np.float32(value)), (key, value)
-    hp = hparams_from_config(cfg)
+    hp = hparams_from_config(cfg).to_flat()
     if key in hp:
         assert np.isfinite(np.asarray(hp[key])), (key, value)

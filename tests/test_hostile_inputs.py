@@ -144,7 +144,7 @@ def test_every_int_field_is_held_to_int32_and_every_float_field_to_float32():
 def test_the_largest_traced_integers_reach_the_program_exactly():
     cfg = load_config(None, ["ddpg.train_every=2147483647", "ddpg.target_every=2147483647", "method=iddpg"])
     hp = hparams_from_config(cfg)
-    assert int(hp["ddpg.train_every"]) == 2**31 - 1 and hp["ddpg.train_every"].dtype == dtype("ddpg.train_every")
+    assert int(hp.ddpg.train_every) == 2**31 - 1 and hp.ddpg.train_every.dtype == dtype("ddpg.train_every")
 
 
 @pytest.mark.parametrize(

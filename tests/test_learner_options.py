@@ -26,6 +26,7 @@ import pytest
 from fedjax_nav.agents import buffer as rb
 from fedjax_nav.agents import ddpg, learners, normalize, offpolicy, ppo, sac, td3
 from fedjax_nav.config import ConfigError, apply_overrides, from_dict, read_yaml, values
+from fedjax_nav.config.traced import HParams
 from fedjax_nav.training.hparams import hparams_from_config
 from fedjax_nav.training.trainer import Trainer
 
@@ -70,7 +71,7 @@ def test_ppo_normaliser_holds_numpys_statistics_of_the_rollouts_seen():
     assert set(state.actor) == {"params", ppo.NORM}
     assert set(ppo.init(ppo.make_nets(hidden=8, depth=1), jax.random.key(0), OBS).actor) == {"params"}  # default
     update, evaluate = (
-        jax.jit(lambda s, r, k: ppo.update(nets, s, r, k, ppo.HParams())),
+        jax.jit(lambda s, r, k: ppo.update(nets, s, r, k, HParams())),
         jax.jit(lambda s, r: ppo.evaluate(nets, s, r)),
     )
     rng, seen = np.random.default_rng(1), []
@@ -327,13 +328,13 @@ def _today(name, nets, state, buf, key, g, hp):
     split it and learn from `one_step` rows."""
     count = (g + 1) * ENVS
     if name == "ddpg":
-        return ddpg.update(nets, state, rb.sample(buf, key, 4, count, CAP), hp["ddpg.gamma"], hp["ddpg.lr"])
+        return ddpg.update(nets, state, rb.sample(buf, key, 4, count, CAP), hp.ddpg.gamma, hp.ddpg.lr)
     k_batch, k_step = jax.random.split(key)
-    batch = offpolicy.one_step(rb.sample(buf, k_batch, 4, count, CAP), hp["ddpg.gamma"])
+    batch = offpolicy.one_step(rb.sample(buf, k_batch, 4, count, CAP), hp.ddpg.gamma)
     if name == "td3":
-        index = (g + 1) // hp["ddpg.train_every"] - 1  # the gradient step's index in the run
-        return td3.update(nets, state, batch, k_step, learners._td3_hp(hp), index % hp["td3.policy_delay"] == 0)
-    return sac.update(nets, state, batch, k_step, learners._sac_hp(hp))
+        index = (g + 1) // hp.ddpg.train_every - 1  # the gradient step's index in the run
+        return td3.update(nets, state, batch, k_step, hp, index % hp.td3.policy_delay == 0)
+    return sac.update(nets, state, batch, k_step, hp)
 
 
 @pytest.mark.parametrize("name", ["ddpg", "td3", "sac"])

@@ -17,6 +17,7 @@ import pytest
 from fedjax_nav.agents import buffer as rb
 from fedjax_nav.agents import distributions as dist
 from fedjax_nav.agents import normalize, offpolicy, sac, td3
+from fedjax_nav.config.traced import HParams
 
 LOW, HIGH = np.array([0.0, -1.0]), np.array([1.0, 1.0])
 BEST = np.array([0.3, -0.5], np.float32)
@@ -216,7 +217,7 @@ def _batch(n, reward, discount, done):
 
 def test_td3_target_is_the_min_of_the_twins_at_the_target_action(td3_known):
     nets, state, target = td3_known
-    hp = td3.HParams(policy_noise=0.0, noise_clip=0.5)
+    hp = HParams().replace_flat({"td3.policy_noise": 0.0, "td3.noise_clip": 0.5})
     # Q1 = 0.9 - 1 + 0.5 = 0.4, Q2 = -0.9 - 0.5 + 2 = 0.6: min 0.4
     y = target(nets, state, _batch(256, 1.0, 0.5, 0.0), jax.random.key(1), hp)
     np.testing.assert_allclose(np.asarray(y), 1.0 + 0.5 * 0.4, rtol=1e-5)
@@ -227,7 +228,7 @@ def test_td3_target_is_the_min_of_the_twins_at_the_target_action(td3_known):
 def test_td3_target_smoothing_noise_is_clipped_then_the_action_to_the_box(td3_known):
     nets, state, target = td3_known
     # huge noise clipped to +-0.3 half-widths: a' = clip(0.9 +- 0.15, 0, 1) x (-0.5 +- 0.3)
-    hp = td3.HParams(policy_noise=1e4, noise_clip=0.3)
+    hp = HParams().replace_flat({"td3.policy_noise": 1e4, "td3.noise_clip": 0.3})
     y = np.asarray(target(nets, state, _batch(256, 0.0, 1.0, 0.0), jax.random.key(2), hp))
     # (a0, a1) -> min(Q1, Q2): (1, -0.2) -> min(1.1, 0.8); (1, -0.8) -> min(-0.1, 0.2);
     # (0.75, -0.2) -> min(0.85, 1.05); (0.75, -0.8) -> min(-0.35, 0.45). Without the clip to the
@@ -246,7 +247,7 @@ def test_td3_actor_and_targets_move_only_on_actor_steps(td3_known):
     state = state.replace(critics_targ=jax.tree.map(lambda x: x + 0.1, state.critics_targ))  # targets != nets
     batch = _batch(16, 1.0, 0.9, 0.0).replace(action=jnp.full((16, 2), 0.3))
     update = jax.jit(td3.update)
-    hp = td3.HParams(tau=0.25)
+    hp = HParams().replace_flat({"td3.tau": 0.25})
     leaves = lambda t: [np.asarray(x, np.float64) for x in jax.tree.leaves(t)]
     held, _ = update(nets, state, batch, jax.random.key(5), hp, jnp.bool_(False))
     for name in ("actor", "actor_targ", "critics_targ", "actor_opt"):
@@ -330,7 +331,7 @@ def test_td3_bandit_probe_finds_the_best_action(td3_train):
     nets, train, _ = td3_train
     buf = bandit_buffer(jax.random.key(1))
     s0, s, losses = train(
-        jax.random.key(0), buf, jnp.float32(0.9), td3.HParams(actor_lr=3e-3, critic_lr=3e-3, tau=0.05)
+        jax.random.key(0), buf, jnp.float32(0.9), HParams().replace_flat({"ddpg.lr": 3e-3, "td3.tau": 0.05})
     )
     assert np.all(np.isfinite(np.asarray(losses)))
     mu0, mu = (np.asarray(td3.greedy(nets, x.actor, jnp.ones(OBS))) for x in (s0, s))
@@ -343,9 +344,9 @@ def test_td3_bandit_probe_finds_the_best_action(td3_train):
 def test_td3_update_compiles_once_for_every_traced_hyperparameter(td3_train):
     _, train, traces = td3_train
     buf = bandit_buffer(jax.random.key(1))
-    hp = td3.HParams(actor_lr=3e-4, critic_lr=2e-4, tau=0.01, policy_noise=0.1, noise_clip=0.2)
+    hp = HParams().replace_flat({"ddpg.lr": 3e-4, "td3.tau": 0.01, "td3.policy_noise": 0.1, "td3.noise_clip": 0.2})
     train(jax.random.key(0), buf, jnp.float32(0.5), hp)
-    train(jax.random.key(0), buf, jnp.float32(0.99), td3.HParams())
+    train(jax.random.key(0), buf, jnp.float32(0.99), HParams())
     assert len(traces) == 1
 
 
@@ -354,7 +355,9 @@ def test_td3_update_compiles_once_for_every_traced_hyperparameter(td3_train):
 # target's half (-2) at alpha* = exp(-4) / (pi e).
 SAC_TARGET_ENTROPY = -4.0
 SAC_ALPHA = float(np.exp(SAC_TARGET_ENTROPY) / (np.pi * np.e))
-SAC_HP = sac.HParams(actor_lr=3e-3, critic_lr=3e-3, alpha_lr=3e-2, tau=0.05, target_entropy=SAC_TARGET_ENTROPY)
+SAC_HP = HParams().replace_flat(
+    {"ddpg.lr": 3e-3, "sac.alpha_lr": 3e-2, "sac.tau": 0.05, "sac.target_entropy": SAC_TARGET_ENTROPY}
+)
 
 
 @pytest.fixture(scope="module")
@@ -404,10 +407,14 @@ def test_sac_temperature_moves_towards_the_target_and_compiles_once(sac_train):
         buf,
         jnp.float32(0.5),
         jnp.float32(0.3),
-        sac.HParams(actor_lr=1e-4, critic_lr=2e-4, alpha_lr=3e-4, tau=0.1, target_entropy=10.0),
+        HParams().replace_flat({"ddpg.lr": 1e-4, "sac.alpha_lr": 3e-4, "sac.tau": 0.1, "sac.target_entropy": 10.0}),
     )
     _, _, _, down = train(
-        jax.random.key(0), buf, jnp.float32(0.99), jnp.float32(2.0), sac.HParams(target_entropy=-20.0)
+        jax.random.key(0),
+        buf,
+        jnp.float32(0.99),
+        jnp.float32(2.0),
+        HParams().replace_flat({"sac.target_entropy": -20.0, "ddpg.lr": 3e-4}),
     )
     assert float(up[1]) > float(up[0]) == pytest.approx(0.3)  # entropy below the target: alpha rises
     assert float(down[1]) < float(down[0]) == pytest.approx(2.0)

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from fedjax_nav.agents import ppo
+from fedjax_nav.config.traced import HParams
 
 # ----------------------------------------------------------------------------- GAE
 
@@ -85,6 +86,8 @@ def test_value_loss_by_hand_clipped_and_not():
     # unclipped (V - R)^2 = [1, 9]; V clipped to V_old +- 0.5 = [1.5, 2.5] -> [2.25, 6.25]; max [2.25, 9]
     assert float(ppo.value_loss(v, v_old, ret, 0.5)) == pytest.approx(0.5 * (2.25 + 9.0) / 2)
     assert float(ppo.value_loss(v, v_old, ret, jnp.inf)) == pytest.approx(0.5 * (1.0 + 9.0) / 2)
+    # 0 is "off", as the config's ppo.value_clip default says (the one convention): inf's number
+    assert float(ppo.value_loss(v, v_old, ret, 0.0)) == float(ppo.value_loss(v, v_old, ret, jnp.inf))
     adv = ppo.normalize_advantages(jnp.array([1.0, 2.0, 6.0]))
     assert abs(float(adv.mean())) < 1e-6 and float(adv.std()) == pytest.approx(1.0, rel=1e-6)
 
@@ -96,12 +99,12 @@ def test_minibatches_that_do_not_divide_the_batch_are_an_error_naming_the_field(
     z = lambda *s: jnp.zeros((3, envs, *s))
     hidden = jax.tree.map(lambda h: jnp.zeros((envs, *h.shape)), ppo.initial_hidden(nets))
     ro = ppo.Rollout(z(3), z(2), z(), z(), z(3), z(), z(), z().astype(bool), hidden)
-    upd = lambda k, r: ppo.update(nets, ppo.init(nets, k, 3), r, k, ppo.HParams())
+    upd = lambda k, r: ppo.update(nets, ppo.init(nets, k, 3), r, k, HParams())
     with pytest.raises(ValueError, match="ppo.minibatches"):
         jax.eval_shape(upd, jax.random.key(0), ro)
     # a count that divides is accepted: 3 for the 15 rows, 6 for the 6 environments
     ok = ppo.make_nets(8, 1, recurrent=recurrent, gru=4, epochs=1, minibatches=envs if recurrent else 3)
-    jax.eval_shape(lambda k, r: ppo.update(ok, ppo.init(ok, k, 3), r, k, ppo.HParams()), jax.random.key(0), ro)
+    jax.eval_shape(lambda k, r: ppo.update(ok, ppo.init(ok, k, 3), r, k, HParams()), jax.random.key(0), ro)
 
 
 @pytest.mark.parametrize(
@@ -208,7 +211,7 @@ def make_train(nets, make_env, steps, envs, updates):
 
 BANDIT = {"L": 1, "terminal": 1, "bandit": 1.0, "const": 0.0}
 TIMEOUT = {"L": 3, "terminal": 0, "bandit": 0.0, "const": 1.0}
-FF_HP = ppo.HParams(lr=3e-3, gamma=0.5, gae_lambda=0.95)
+FF_HP = HParams().replace_flat({"ppo.lr": 3e-3, "ppo.gamma": 0.5, "ppo.gae_lambda": 0.95})
 
 
 @pytest.fixture(scope="module")
@@ -244,11 +247,20 @@ def test_ppo_time_out_probe_bootstraps_the_value(ff):
 def test_ppo_update_compiles_once_for_every_traced_hyperparameter(ff):
     nets, train, traces = ff
     n = len(traces)
-    hp = ppo.HParams(
-        lr=1e-4, gamma=0.9, gae_lambda=0.5, clip_eps=0.1, value_clip=0.2, vf_coef=1.0, ent_coef=0.01, max_grad_norm=1.0
+    hp = HParams().replace_flat(
+        {
+            "ppo.lr": 1e-4,
+            "ppo.gamma": 0.9,
+            "ppo.gae_lambda": 0.5,
+            "ppo.clip_eps": 0.1,
+            "ppo.value_clip": 0.2,
+            "ppo.vf_coef": 1.0,
+            "ppo.ent_coef": 0.01,
+            "ppo.max_grad_norm": 1.0,
+        }
     )
     train(jax.random.key(2), _p(BANDIT), hp)
-    train(jax.random.key(2), _p(TIMEOUT), ppo.HParams())
+    train(jax.random.key(2), _p(TIMEOUT), HParams())
     assert len(traces) == max(n, 1)
     # init's traced initial log-std
     init_traces = []
@@ -280,7 +292,7 @@ def test_gru_reset_starts_from_zeros(rnn):
 
 def test_recurrent_ppo_memory_probe_remembers_the_cue(rnn):
     nets, train = rnn
-    state, losses, err = train(jax.random.key(0), {}, ppo.HParams(lr=3e-3, gamma=0.9))
+    state, losses, err = train(jax.random.key(0), {}, HParams().replace_flat({"ppo.lr": 3e-3, "ppo.gamma": 0.9}))
     # the update's sequences (from the rollout's start hidden state, resets) reproduce acting
     assert float(jnp.max(err)) < 1e-4
     for cue in (-1.0, 1.0):

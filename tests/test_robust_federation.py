@@ -48,10 +48,8 @@ def tiny(*extra, base=FLDDPG):
 
 def hp_for(**kw):
     """The fed.* HParams of a robust rule (traced dtypes as in hparams_from_config)."""
-    hp = {k: v for k, v in hparams_from_config(config.Config()).items() if k.startswith("fed.")}
-    for k, v in kw.items():
-        hp[f"fed.{k}"] = jnp.asarray(v, hp[f"fed.{k}"].dtype)
-    return hp
+    hp = hparams_from_config(config.Config())
+    return hp.replace_flat({f"fed.{k}": jnp.asarray(v, getattr(hp.fed, k).dtype) for k, v in kw.items()})
 
 
 # ----------------------------------------------------------------------------- tables
@@ -72,12 +70,12 @@ def _reference_center(name, params, mask, reference, hp):
     if name == "median":
         return R.ref_median(params, mask)
     if name == "trimmed_mean":
-        return R.ref_trimmed(params, mask, float(hp["fed.trim"]))
+        return R.ref_trimmed(params, mask, float(hp.fed.trim))
     if name == "krum":
-        return R.ref_krum(params, mask, int(hp["fed.krum_f"]), int(hp["fed.krum_m"]))
+        return R.ref_krum(params, mask, int(hp.fed.krum_f), int(hp.fed.krum_m))
     if name == "geometric_median":
         return R.ref_geometric_median(params, mask, robust.GEOMETRIC_MEDIAN_ITERS)
-    return R.ref_norm_bounded(params, mask, reference, float(hp["fed.max_norm"]))
+    return R.ref_norm_bounded(params, mask, reference, float(hp.fed.max_norm))
 
 
 @pytest.mark.parametrize("name", agg.ROBUST)
@@ -90,7 +88,7 @@ def test_robust_aggregators_against_numpy_with_masks_and_tau(name):
 
     @jax.jit
     def update(params, rewards, state, hp, mask):  # the rule built from traced hyperparameters
-        return rule.make(**{h: hp[f"fed.{h}"] for h in rule.hparams}).update(params, rewards, state, mask)
+        return rule.make(**{h: getattr(hp.fed, h) for h in rule.hparams}).update(params, rewards, state, mask)
 
     for k in (5, 6):
         for mask in R.masks_for(k, rng):
@@ -277,7 +275,7 @@ def test_pw_byzantine_clients_inflate_their_reward(fed_states):
     r = np.asarray(st.reward_sum / st.reward_steps, np.float64)
     r_sent = r.copy()
     r_sent[4] = abs(r[4]) * attacks.DEFAULT_REWARD_SCALE + attacks.DEFAULT_REWARD_SCALE
-    w = np.exp(float(hp["fed.beta"]) * r_sent)
+    w = np.exp(float(hp.fed.beta) * r_sent)
     w /= w.sum()
     own = np.asarray(st.agents.actor["params"]["Dense_0"]["kernel"], np.float64)
     sent = own.copy()

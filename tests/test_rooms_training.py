@@ -63,7 +63,7 @@ def test_procedural_rooms_change_in_one_compilation_and_fixed_robots_keep_theirs
     fixed = worlds.pad(worlds.load("train-2"), M, C, S, G)
     for s in seen:
         assert np.array_equal(s[:, 1], np.broadcast_to(np.asarray(fixed.segments), s[:, 1].shape))
-    hp1 = {**hp, "env.room_every": jnp.int32(1)}
+    hp1 = hp | {"env.room_every": jnp.int32(1)}
     a = np.asarray(st.world.circles)
     st, _ = chunk(st, hp1, jnp.int32(3))
     b = np.asarray(st.world.circles)
@@ -235,7 +235,7 @@ def test_curriculum_density_rises_in_one_compilation_and_is_checked(capsys):
         st, _ = chunk(st, hp, jnp.int32(ep))
         placed.append(int((np.asarray(st.world.circles)[..., 2] > 0).sum()))
     assert placed[0] == 0 and placed[2] > placed[0], placed
-    hp2 = {**hp, "env.room_density_start": jnp.float32(0.5)}
+    hp2 = hp | {"env.room_density_start": jnp.float32(0.5)}
     chunk(tr.init_seeds(jnp.arange(1), hp2), hp2, jnp.int32(0))
     assert len(traces) == 1
     args = ["train", "--set", "env.room_curriculum_episodes=10", "--episodes", "2", "--quiet"]

@@ -352,7 +352,7 @@ def test_state_shardings_by_field(tmp_path):
         if getattr(template, name) is None:  # `world`: only procedural-room runs carry their rooms
             continue
         assert spec(getattr(sh, name)) == {P(None, "clients")}, name
-    for name in ("epsilon", "agg_state", "reward_steps", "key"):
+    for name in ("explore", "agg_state", "reward_steps", "key"):
         assert spec(getattr(sh, name)) == {P(None)}, name
     sh = parallel.state_shardings(template, parallel.make_mesh(1, "seeds"))
     assert {x.spec for x in jax.tree.leaves(sh)} == {P("seeds")}

@@ -313,9 +313,9 @@ def test_stack_hparams_keeps_equal_fields_scalar():
     from fedjax_nav.training.hparams import hparams_from_config, stack_hparams
 
     a = hparams_from_config(load_config(ROOT / "configs" / "thesis" / "flddpg.yaml"))
-    b = a | {"fed.tau": jax.numpy.float32(1.0)}
+    b = a.replace_flat({"fed.tau": jax.numpy.float32(1.0)})
     hp = stack_hparams([a, b, b])
-    assert hp["fed.tau"].shape == (3,) and hp["ddpg.gamma"].shape == () and hp["ddpg.train_every"].shape == ()
+    assert hp.fed.tau.shape == (3,) and hp.ddpg.gamma.shape == () and hp.ddpg.train_every.shape == ()
 
 
 def test_rows_pad_to_a_multiple_of_the_devices():
@@ -323,7 +323,7 @@ def test_rows_pad_to_a_multiple_of_the_devices():
     (g,) = sw.plan(sw.merge_jobs(tau.points), budget=2**40, devices=2)
     assert g.batch_rows == 4 and g.batched == {"fed.tau"}  # 3 points x 1 seed, padded to 4 rows
     seeds, hp, spans = sw.batch_rows(g.batches[0], g.batch_rows, g.batched)
-    assert list(seeds) == [0, 0, 0, 0] and hp["fed.tau"].shape == (4,) and hp["ddpg.gamma"].shape == ()
+    assert list(seeds) == [0, 0, 0, 0] and hp.fed.tau.shape == (4,) and hp.ddpg.gamma.shape == ()
     assert [(lo, n) for _, lo, n in spans] == [(0, 1), (1, 1), (2, 1)]
 
 
@@ -394,7 +394,7 @@ def test_every_traced_field_is_an_input_the_program_uses():
 
     cfg = load_config(ROOT / "configs" / "thesis" / "pwddpg.yaml", TINY_SET + ["run.episodes=1"])
     hp = hparams_from_config(cfg)
-    assert set(hp) == set(traced_fields()) and len(hp) >= 19
+    assert set(hp.to_flat()) == set(traced_fields()) and len(hp.to_flat()) >= 19
     assert not set(json.loads(sw.group_key(cfg))) & set(traced_fields())
 
     def unused_by(cfg):
@@ -405,7 +405,7 @@ def test_every_traced_field_is_an_input_the_program_uses():
             return tr.chunk(states, h, jax.numpy.int32(0), 1)
 
         closed = jax.make_jaxpr(init_and_train)(hp)
-        names = sorted(hp)  # dict pytrees flatten in key order
+        names = list(hp.to_flat())  # the struct flattens in the sections' and fields' order
         hp_vars = closed.jaxpr.invars
         used = {v for eqn in closed.jaxpr.eqns for v in eqn.invars if hasattr(v, "aval") and not hasattr(v, "val")}
         return {n for n, v in zip(names, hp_vars) if v not in used}

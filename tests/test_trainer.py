@@ -194,7 +194,7 @@ def test_snddpg_acts_with_one_network_for_every_robot():
     r = run_thesis("snddpg")
     tr = r.trainer
     assert tr.n_nets == 1
-    state = seed_slice(r.states, 0).replace(epsilon=jnp.float32(0.0))
+    state = seed_slice(r.states, 0).replace(explore=jnp.float32(0.0))
     actions = np.asarray(jax.jit(tr._act)(state, jax.random.key(3)))
     actor = jax.tree.map(lambda p: p[0], state.agents.actor)
     for k in range(ROBOTS):
@@ -206,7 +206,7 @@ def test_snddpg_acts_with_one_network_for_every_robot():
 def test_independent_networks_act_each_for_their_robot():
     r = run_thesis("iddpg")
     tr = r.trainer
-    state = seed_slice(r.states, 0).replace(epsilon=jnp.float32(0.0))
+    state = seed_slice(r.states, 0).replace(explore=jnp.float32(0.0))
     actions = np.asarray(jax.jit(tr._act)(state, jax.random.key(3)))
     for k in range(ROBOTS):
         own = jax.tree.map(lambda p, k=k: p[k], state.agents.actor)

@@ -43,30 +43,15 @@ def make_nets(v: dict) -> OnPolicyNets:
     return OnPolicyNets(nets, v["ppo.rollout"])
 
 
-def hparams(hp) -> ppo.HParams:
-    """ppo.HParams from the trainer's HParams (ppo.value_clip 0 = not clipped)."""
-    vc = hp["ppo.value_clip"]
-    return ppo.HParams(
-        lr=hp["ppo.lr"],
-        gamma=hp["ppo.gamma"],
-        gae_lambda=hp["ppo.gae_lambda"],
-        clip_eps=hp["ppo.clip_eps"],
-        value_clip=jnp.where(vc > 0, vc, jnp.inf),
-        vf_coef=hp["ppo.vf_coef"],
-        ent_coef=hp["ppo.ent_coef"],
-        max_grad_norm=hp["ppo.max_grad_norm"],
-    )
-
-
 def init(nets: OnPolicyNets, key, obs_size: int, hp) -> ppo.State:
-    return ppo.init(nets.ppo, key, obs_size, hp["ppo.init_log_std"])
+    return ppo.init(nets.ppo, key, obs_size, hp.ppo.init_log_std)
 
 
 def memory(nets: OnPolicyNets) -> ppo.Hidden:
     return ppo.initial_hidden(nets.ppo)
 
 
-def explore(nets: OnPolicyNets, state, obs, key, hp, epsilon, memory, first):
+def explore(nets: OnPolicyNets, state, obs, key, hp, carry, memory, first):
     step, hidden = ppo.act(nets.ppo, state, obs, key, memory, first)
     return step.action, (step.raw_action, step.log_prob), hidden
 
@@ -117,5 +102,5 @@ def due(nets: OnPolicyNets, g, rows: int, hp):
 
 
 def update(nets: OnPolicyNets, state, ro, key, g, rows: int, hp):
-    state, info = ppo.update(nets.ppo, state, ro, key, hparams(hp))
+    state, info = ppo.update(nets.ppo, state, ro, key, hp)
     return state, {m: info[m] for m in METRICS}

@@ -2,17 +2,19 @@
 (as `federated.aggregators.RULES` is for the servers' rules). The trainer calls these functions and
 never looks at a learner's name (docs/learners.md, "The trainer's side").
 
-    learner = LEARNERS[cfg.learner]
+    learner = get(cfg.learner)                         # its row in fedjax_nav.learner_table, resolved
     nets = learner.make_nets(config.values(cfg))     # static: modules, batch and loop sizes
     state = learner.init(nets, key, obs_size, hp)      # one agent
-    action, extra, memory = learner.explore(nets, state, obs, key, hp, epsilon, memory, first)
+    carry = learner.explore_init(hp)                   # the exploration carry (DDPG: epsilon), per seed
+    action, extra, memory = learner.explore(nets, state, obs, key, hp, carry, memory, first)
+    carry = learner.explore_next(carry, hp)            # after every step
     storage = learner.storage(nets, obs_size, rows)    # one buffer: replay rows, or a rollout
     storage = learner.store(nets, storage, record, g, rows, hp)
     state, losses = learner.update(nets, state, storage, key, g, rows, hp)    # where learner.due(...)
 
 Every function is for ONE agent, ONE buffer or ONE environment, unbatched (the trainer adds agents,
-environments and seeds with vmap). `hp` is the trainer's HParams (traced config values by dotted
-name: each learner reads its own section and the shared off-policy ones of `ddpg.*`); `g` is the
+environments and seeds with vmap). `hp` is the trainer's HParams (config.traced: the traced config
+values, `hp.td3.tau`; each learner reads its own section and the shared off-policy ones of `hp.ddpg`); `g` is the
 global step, an unbatched i32 (the gates stay real conds); `rows` (static) is how many rows one
 buffer receives per step. `record` is a `Record` with a leading [rows] axis.
 
@@ -34,8 +36,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fedjax_nav import learner_table
 from fedjax_nav.agents import buffer as rb
-from fedjax_nav.agents import ddpg, ppo, sac, td3
+from fedjax_nav.agents import ddpg, sac, td3
 from fedjax_nav.agents import learner_ppo as lp
 from fedjax_nav.agents.networks import Critic
 from fedjax_nav.agents.networks_extra import SquashedGaussianActor
@@ -57,25 +60,31 @@ class Record(NamedTuple):
 
 
 class Learner(NamedTuple):
-    """A learner as data plus pure functions (the module docstring gives the call shapes)."""
+    """A learner as data plus pure functions (the module docstring gives the call shapes). The
+    facts of the learner's row (fedjax_nav.learner_table: name, on_policy, shared, targets) are
+    filled in by `get`; an implementation leaves them at their defaults."""
 
-    name: str
-    on_policy: bool  # learns from its own policy's rollout: no buffer to share (config.ON_POLICY_LEARNERS)
     metrics: tuple[str, ...]  # the losses `update` reports: the trainer's per-network metrics
     make_nets: Callable  # (values: dict of config values by dotted name) -> nets (static)
     init: Callable  # (nets, key, obs_size, hp) -> state
     memory: Callable  # (nets) -> one environment's carry at an episode start, or None (no memory)
-    explore: Callable  # (nets, state, obs, key, hp, epsilon, memory, first) -> (action, extra, memory)
+    explore: Callable  # (nets, state, obs, key, hp, carry, memory, first) -> (action, extra, memory)
     policy: Callable  # (state) -> the greedy policy's parameters (probe, evaluation, export)
     greedy: Callable  # (nets, policy, obs, memory, first) -> (action, memory)
     storage: Callable  # (nets, obs_size, rows) -> one empty buffer
     store: Callable  # (nets, storage, record, g, rows, hp) -> storage
     due: Callable  # (nets, g, rows, hp) -> bool[]: an update event after step g
     update: Callable  # (nets, state, storage, key, g, rows, hp) -> (state, {metric: f32[]})
-    shared_fields: tuple[str, ...]  # the module's SHARED: what a federated round averages
-    target_fields: tuple[str, ...]  # the module's TARGETS: averaged too with fed.include_targets
     targets_due: Callable | None = None  # (nets, g, rows, hp) -> bool[]: a separate target update (DDPG)
     targets: Callable | None = None  # (nets, state, hp) -> state
+    # exploration that is not the agent's: a carry of one seed, stepped once per environment step
+    explore_init: Callable = lambda hp: ()  # (hp) -> the carry at step 0
+    explore_next: Callable = lambda carry, hp: carry  # (carry, hp) -> the carry after a step
+    explore_metric: Callable = lambda carry: jnp.float32(0.0)  # (carry) -> metrics.csv's epsilon column
+    name: str = ""  # the row's
+    on_policy: bool = False  # the row's: learns from its own policy's rollout, no buffer to share
+    shared_fields: tuple[str, ...] = ()  # the row's `shared`: what a federated round averages
+    target_fields: tuple[str, ...] = ()  # the row's `targets`: averaged too with fed.include_targets
 
     def shared(self, state, include_targets: bool = False) -> dict:
         """What a client sends in a federated round: its SHARED fields (and TARGETS if asked)."""
@@ -115,7 +124,7 @@ def _off_policy_nets(actor_cls):
 
 def capacity(nets: OffPolicyNets, hp) -> jax.Array:
     """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
-    return jnp.minimum(hp["ddpg.buffer_size"], nets.buffer_rows)
+    return jnp.minimum(hp.ddpg.buffer_size, nets.buffer_rows)
 
 
 def _replay(nets, obs_size: int, rows: int) -> rb.Transition | rb.EpisodeRows:
@@ -150,7 +159,7 @@ def _ready(nets, g, rows: int):
 
 def _due_replay(nets, g, rows: int, hp):
     """Every ddpg.train_every steps once the buffer holds a batch."""
-    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.train_every"] == 0)
+    return _ready(nets, g, rows) & ((g + 1) % hp.ddpg.train_every == 0)
 
 
 def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
@@ -162,13 +171,13 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
         count, cap, n = (g + 1) * rows, capacity(nets, hp), nets.gradient_steps
 
         def sample(k):
-            return sample_batch(nets, buf, k, count, cap, rows, hp["ddpg.gamma"])
+            return sample_batch(nets, buf, k, count, cap, rows, hp.ddpg.gamma)
 
         def one(state, k, i):
             state, losses = grad_step(nets, state, sample, k, hp, i)
             return state, {m: losses[m] for m in metrics}
 
-        index = ((g + 1) // hp["ddpg.train_every"] - 1) * n  # update events before this one x gradient steps
+        index = ((g + 1) // hp.ddpg.train_every - 1) * n  # update events before this one x gradient steps
         if n == 1:
             return one(state, key, index)
         steps = (jax.random.split(key, n), index + jnp.arange(n, dtype=jnp.int32))
@@ -181,11 +190,7 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
 def _ddpg_step(nets, state, sample, key, hp, i):
     b = sample(key)
     batch = rb.Transition(b.obs, b.action, b.reward, b.next_obs, b.done)
-    return ddpg.update(nets, state, batch, b.discount, hp["ddpg.lr"])  # discount: gamma per row, gamma^k n-step
-
-
-def _td3_hp(hp) -> td3.HParams:
-    return td3.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["td3.tau"], hp["td3.policy_noise"], hp["td3.noise_clip"])
+    return ddpg.update(nets, state, batch, b.discount, hp.ddpg.lr)  # discount: gamma per row, gamma^k n-step
 
 
 def _split_batch(sample, key):
@@ -196,17 +201,13 @@ def _split_batch(sample, key):
 
 def _td3_step(nets, state, sample, key, hp, i):
     batch, k_noise = _split_batch(sample, key)
-    actor_step = i % hp["td3.policy_delay"] == 0  # the policy delay, from the unbatched step counter
-    return td3.update(nets, state, batch, k_noise, _td3_hp(hp), actor_step)
-
-
-def _sac_hp(hp) -> sac.HParams:
-    return sac.HParams(hp["ddpg.lr"], hp["ddpg.lr"], hp["sac.alpha_lr"], hp["sac.tau"], hp["sac.target_entropy"])
+    actor_step = i % hp.td3.policy_delay == 0  # the policy delay, from the unbatched step counter
+    return td3.update(nets, state, batch, k_noise, hp, actor_step)
 
 
 def _sac_step(nets, state, sample, key, hp, i):
     batch, k_step = _split_batch(sample, key)
-    return sac.update(nets, state, batch, k_step, _sac_hp(hp))
+    return sac.update(nets, state, batch, k_step, hp)
 
 
 def _no_memory(nets):
@@ -228,30 +229,30 @@ OFF_POLICY_METRICS = ("critic_loss", "actor_loss", "q")
 
 
 def _ddpg_explore(nets, state, obs, key, hp, epsilon, memory, first):
+    """Epsilon-greedy: `epsilon` is DDPG's exploration carry (ddpg.epsilon_start, times
+    ddpg.epsilon_decay after every step)."""
     return ddpg.epsilon_greedy(key, ddpg.act(nets, state.actor, obs), epsilon), (), memory
 
 
-def _td3_explore(nets, state, obs, key, hp, epsilon, memory, first):
-    return td3.act(nets, state.actor, obs, key, hp["td3.expl_noise"]), (), memory
+def _td3_explore(nets, state, obs, key, hp, carry, memory, first):
+    return td3.act(nets, state.actor, obs, key, hp.td3.expl_noise), (), memory
 
 
-def _sac_explore(nets, state, obs, key, hp, epsilon, memory, first):
+def _sac_explore(nets, state, obs, key, hp, carry, memory, first):
     return sac.act(nets, state.actor, obs, key), (), memory
 
 
 def _ddpg_targets_due(nets, g, rows: int, hp):
-    return _ready(nets, g, rows) & ((g + 1) % hp["ddpg.target_every"] == 0)
+    return _ready(nets, g, rows) & ((g + 1) % hp.ddpg.target_every == 0)
 
 
-def _replay_learner(name: str, actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
+def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
     """An off-policy learner: `actor_cls` and the critic at the ddpg.* network sizes, replay rows
     (`_replay`, `_store_replay`, `_due_replay`), `gradient_steps` calls of `grad_step` per update
     event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
-    explore, shared_fields, target_fields; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
+    explore; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
     metrics = fields.pop("metrics", OFF_POLICY_METRICS)
     return Learner(
-        name=name,
-        on_policy=False,
         metrics=metrics,
         make_nets=_off_policy_nets(actor_cls),
         memory=_no_memory,
@@ -266,43 +267,35 @@ def _replay_learner(name: str, actor_cls, grad_step: Callable, greedy: Callable,
 
 
 DDPG = _replay_learner(
-    "ddpg",
     ddpg.Actor,
     _ddpg_step,
     ddpg.act,
     init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
     explore=_ddpg_explore,
-    shared_fields=("actor", "critic"),
-    target_fields=("actor_targ", "critic_targ"),
     targets_due=_ddpg_targets_due,
-    targets=lambda nets, state, hp: ddpg.update_targets(state, hp["ddpg.rho"]),
+    targets=lambda nets, state, hp: ddpg.update_targets(state, hp.ddpg.rho),
+    explore_init=lambda hp: jnp.asarray(hp.ddpg.epsilon_start, jnp.float32),
+    explore_next=lambda epsilon, hp: epsilon * hp.ddpg.epsilon_decay,
+    explore_metric=lambda epsilon: epsilon,
 )
 TD3 = _replay_learner(
-    "td3",
     ddpg.Actor,
     _td3_step,
     td3.greedy,
     init=lambda nets, key, obs_size, hp: td3.init(nets, key, obs_size),
     explore=_td3_explore,
-    shared_fields=td3.SHARED,
-    target_fields=td3.TARGETS,
 )
 SAC_METRICS = (*OFF_POLICY_METRICS, "alpha", "entropy")
 SAC = _replay_learner(
-    "sac",
     SquashedGaussianActor,
     _sac_step,
     sac.greedy,
-    init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp["sac.init_alpha"]),
+    init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp.sac.init_alpha),
     explore=_sac_explore,
-    shared_fields=sac.SHARED,
-    target_fields=sac.TARGETS,
     metrics=SAC_METRICS,
 )
 
 PPO = Learner(
-    name="ppo",
-    on_policy=True,
     metrics=lp.METRICS,
     make_nets=lp.make_nets,
     init=lp.init,
@@ -314,15 +307,13 @@ PPO = Learner(
     store=lp.store,
     due=lp.due,
     update=lp.update,
-    shared_fields=ppo.SHARED,
-    target_fields=ppo.TARGETS,
 )
-
-LEARNERS: dict[str, Learner] = {x.name: x for x in (DDPG, TD3, SAC, PPO)}
 
 
 def get(name: str) -> Learner:
-    try:
-        return LEARNERS[name]
-    except KeyError:
-        raise ValueError(f"unknown learner {name!r}; allowed: {', '.join(LEARNERS)}") from None
+    """The learner of a row of fedjax_nav.learner_table (a ValueError naming the allowed ones),
+    with the row's facts filled in."""
+    row = learner_table.get(name)
+    return row.learner()._replace(
+        name=row.name, on_policy=row.on_policy, shared_fields=row.shared, target_fields=row.targets
+    )

@@ -18,10 +18,12 @@ Algorithm outline (the trainer's loop; this module is everything but the rollout
 
 The policy is the tanh-squashed Gaussian on the action box (distributions.py; brax's PPO uses the
 same) with a state-independent log-std: the rollout keeps each draw's raw (pre-tanh) action, on
-which the log-density is exact. H is its one-sample entropy estimate. Every field of `HParams`
-and `init`'s init_log_std are traced; Nets fix the shapes and loops (hidden sizes, GRU, epochs,
-minibatches). Federated: `SHARED` (actor, log_std, value) is what a round averages; the Adam
-moments stay local.
+which the log-density is exact. H is its one-sample entropy estimate. `hp` is the config's traced
+values (config.traced.HParams, read duck-typed: `hp.ppo.lr`, `.gamma`, `.gae_lambda`, `.clip_eps`,
+`.value_clip` (0 = not clipped), `.vf_coef`, `.ent_coef`, `.max_grad_norm`); they and `init`'s
+init_log_std are traced; Nets fix the shapes and loops (hidden sizes, GRU, epochs, minibatches).
+Federated: a round averages actor (with its observation statistics when normalised), log_std and
+value (PPO's row of fedjax_nav/learner_table.py); the Adam moments stay local.
 
 Observation normalisation (`make_nets(normalize_obs=True)`; docs/learners.md): the actor's variable
 dict holds, beside "params", a collection `NORM` with the running statistics of the observations
@@ -49,8 +51,6 @@ from fedjax_nav.agents import distributions as dist
 from fedjax_nav.agents import normalize
 from fedjax_nav.agents.networks_extra import MeanNet, RecurrentMLP, ValueNet
 
-SHARED = ("actor", "log_std", "value")  # "actor" carries the observation statistics (NORM) when normalised
-TARGETS = ()
 NORM = "obs_norm"  # the actor's variable collection of observation statistics (normalize.moments)
 _ADAM = optax.scale_by_adam()
 
@@ -78,20 +78,6 @@ class State:
     log_std: jax.Array  # f32[A], state-independent
     value: dict
     opt: optax.OptState  # Adam over (actor, log_std, value)
-
-
-@struct.dataclass
-class HParams:
-    """Traced hyperparameters (defaults: PureJaxRL's / brax's continuous-control PPO)."""
-
-    lr: float = 3e-4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_eps: float = 0.2
-    value_clip: float = float("inf")  # eps_V; inf: the value loss is not clipped
-    vf_coef: float = 0.5
-    ent_coef: float = 0.0
-    max_grad_norm: float = 0.5
 
 
 class Hidden(NamedTuple):
@@ -269,7 +255,9 @@ def clipped_surrogate(log_prob, old_log_prob, adv, clip_eps) -> tuple[jax.Array,
 
 
 def value_loss(values, old_values, returns, value_clip) -> jax.Array:
-    """0.5 mean max((V - R)^2, (V_old + clip(V - V_old, -eps_V, eps_V) - R)^2); eps_V = inf: plain."""
+    """0.5 mean max((V - R)^2, (V_old + clip(V - V_old, -eps_V, eps_V) - R)^2); eps_V = 0 (the
+    config's ppo.value_clip default) or inf: not clipped, 0.5 mean (V - R)^2."""
+    value_clip = jnp.where(value_clip > 0, value_clip, jnp.inf)
     clipped = old_values + jnp.clip(values - old_values, -value_clip, value_clip)
     return 0.5 * jnp.mean(jnp.maximum((values - returns) ** 2, (clipped - returns) ** 2))
 
@@ -315,7 +303,7 @@ def _evaluate(nets: Nets, state: State, rollout: Rollout) -> tuple[jax.Array, ja
     return dist.log_prob_raw(mean, state.log_std, rollout.raw_action), v, nv
 
 
-def _minibatch_loss(params, nets: Nets, mb: dict, key: jax.Array, hp: HParams):
+def _minibatch_loss(params, nets: Nets, mb: dict, key: jax.Array, hp):
     actor, log_std, value = params
     if nets.recurrent:  # mb: [e, T, ...] whole sequences, hidden [e, gru]
         mean, v = jax.vmap(lambda h, o, r: _env_forward(nets, actor, value, h, o, r))(
@@ -327,11 +315,11 @@ def _minibatch_loss(params, nets: Nets, mb: dict, key: jax.Array, hp: HParams):
         mean, v = nets.actor.apply(actor, mb["obs"]), nets.value.apply(value, mb["obs"])
     log_std = jnp.broadcast_to(log_std, mean.shape)
     logp = dist.log_prob_raw(mean, log_std, mb["raw_action"])
-    pg, clip_frac = clipped_surrogate(logp, mb["log_prob"], normalize_advantages(mb["adv"]), hp.clip_eps)
-    v_loss = value_loss(v, mb["value"], mb["return"], hp.value_clip)
+    pg, clip_frac = clipped_surrogate(logp, mb["log_prob"], normalize_advantages(mb["adv"]), hp.ppo.clip_eps)
+    v_loss = value_loss(v, mb["value"], mb["return"], hp.ppo.value_clip)
     ent = jnp.mean(dist.entropy(key, mean, log_std))
     log_ratio = logp - mb["log_prob"]
-    total = pg + hp.vf_coef * v_loss - hp.ent_coef * ent
+    total = pg + hp.ppo.vf_coef * v_loss - hp.ppo.ent_coef * ent
     aux = {
         "loss": total,
         "policy_loss": pg,
@@ -343,7 +331,7 @@ def _minibatch_loss(params, nets: Nets, mb: dict, key: jax.Array, hp: HParams):
     return total, aux
 
 
-def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp: HParams) -> tuple[State, dict]:
+def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp) -> tuple[State, dict]:
     """epochs x minibatches Adam steps on one rollout [T, E]. The rows (T * E of them; for a
     recurrent policy the E environments, each a whole sequence) are permuted each epoch and cut
     into nets.minibatches equal parts: a ValueError naming ppo.minibatches if they do not divide.
@@ -359,7 +347,7 @@ def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp: HPara
     raw, rollout = rollout, observe_rollout(nets, state.actor, rollout)
     _, values, next_values = _evaluate(nets, state, rollout)
     end = jnp.maximum(jnp.asarray(rollout.terminated, jnp.float32), jnp.asarray(rollout.truncated, jnp.float32))
-    adv, returns = gae(rollout.reward, values, next_values, rollout.terminated, end, hp.gamma, hp.gae_lambda)
+    adv, returns = gae(rollout.reward, values, next_values, rollout.terminated, end, hp.ppo.gamma, hp.ppo.gae_lambda)
     data = {
         "obs": rollout.obs,
         "raw_action": rollout.raw_action,
@@ -380,9 +368,9 @@ def update(nets: Nets, state: State, rollout: Rollout, key: jax.Array, hp: HPara
         params, opt = carry
         mb, k = inp
         grads, aux = jax.grad(_minibatch_loss, has_aux=True)(params, nets, mb, k, hp)
-        grads, _ = optax.clip_by_global_norm(hp.max_grad_norm).update(grads, optax.EmptyState())
+        grads, _ = optax.clip_by_global_norm(hp.ppo.max_grad_norm).update(grads, optax.EmptyState())
         upd, opt = _ADAM.update(grads, opt, params)
-        return (jax.tree.map(lambda p, u: p - hp.lr * u, params, upd), opt), aux
+        return (jax.tree.map(lambda p, u: p - hp.ppo.lr * u, params, upd), opt), aux
 
     def epoch(carry, k):
         k_perm, k_mb = jax.random.split(k)

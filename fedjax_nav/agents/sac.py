@@ -13,11 +13,13 @@ Algorithm outline (the trainer's loop; rejax's sac.py and brax's sac/losses.py i
 The log-densities are in box units (tanh and affine Jacobians: distributions.py), so the default
 target entropy -action_size is for the box [0, 1] x [-1, 1]. The alpha loss's gradient in log_alpha
 is alpha (H - target_entropy) with H the batch's entropy estimate: above the target the
-temperature falls. Every field of `HParams` and `init`'s init_alpha are traced; Nets fix shapes.
+temperature falls. `hp` is the config's traced values (config.traced.HParams, read duck-typed):
+`hp.ddpg.lr` (actor and critics) and `hp.sac.alpha_lr`, `.tau`, `.target_entropy`; they and
+`init`'s init_alpha are traced; Nets fix shapes.
 
-Federated: `SHARED` (actor, critics, log_alpha) is what a round averages (log_alpha: the
-temperature belongs with the policy whose entropy it tunes); `TARGETS` only with
-`fed.include_targets`; the Adam moments stay local.
+Federated: a round averages actor, critics and log_alpha (the temperature belongs with the policy
+whose entropy it tunes), critics_targ only with `fed.include_targets`: SAC's row of
+fedjax_nav/learner_table.py; the Adam moments stay local.
 """
 
 from __future__ import annotations
@@ -43,9 +45,6 @@ from fedjax_nav.agents.offpolicy import (
 )
 from fedjax_nav.agents.offpolicy import TwinNets as Nets
 
-SHARED = ("actor", "critics", "log_alpha")
-TARGETS = ("critics_targ",)
-
 
 @struct.dataclass
 class State:
@@ -56,17 +55,6 @@ class State:
     actor_opt: optax.OptState
     critic_opt: optax.OptState
     alpha_opt: optax.OptState
-
-
-@struct.dataclass
-class HParams:
-    """Traced hyperparameters (defaults: the SAC paper's, target entropy -action_size)."""
-
-    actor_lr: float = 3e-4
-    critic_lr: float = 3e-4
-    alpha_lr: float = 3e-4
-    tau: float = 0.005  # target mix
-    target_entropy: float = -2.0
 
 
 def make_nets(hidden: int = 64, depth: int = 2, activation: str = "relu", action_size: int = 2) -> Nets:
@@ -117,7 +105,7 @@ def target(nets: Nets, state: State, batch: Batch, key: jax.Array) -> jax.Array:
     return td_target(batch, v_next)
 
 
-def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> tuple[State, dict]:
+def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> tuple[State, dict]:
     """Critic step, actor step (against the updated critics), temperature step (on the actor
     step's log-densities), soft target update. Losses: critic_loss, actor_loss, alpha_loss, alpha
     (before this step), entropy (the batch's estimate -mean log pi), q."""
@@ -125,7 +113,7 @@ def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) 
     alpha = jnp.exp(state.log_alpha)
     y = target(nets, state, batch, k_target)
 
-    critics, critic_opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.critic_lr)
+    critics, critic_opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.ddpg.lr)
 
     def actor_loss(p):
         a, logp = _sample(nets, p, batch.obs, k_actor)
@@ -133,15 +121,15 @@ def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) 
         return jnp.mean(alpha * logp - q_pi), logp
 
     (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(state.actor)
-    actor, actor_opt = adam_step(ADAM, state.actor, a_grads, state.actor_opt, hp.actor_lr)
+    actor, actor_opt = adam_step(ADAM, state.actor, a_grads, state.actor_opt, hp.ddpg.lr)
 
-    t_loss, t_grad = jax.value_and_grad(alpha_loss)(state.log_alpha, logp, hp.target_entropy)
-    log_alpha, alpha_opt = adam_step(ADAM, state.log_alpha, t_grad, state.alpha_opt, hp.alpha_lr)
+    t_loss, t_grad = jax.value_and_grad(alpha_loss)(state.log_alpha, logp, hp.sac.target_entropy)
+    log_alpha, alpha_opt = adam_step(ADAM, state.log_alpha, t_grad, state.alpha_opt, hp.sac.alpha_lr)
 
     state = State(
         actor=actor,
         critics=critics,
-        critics_targ=soft_update(state.critics_targ, critics, hp.tau),
+        critics_targ=soft_update(state.critics_targ, critics, hp.sac.tau),
         log_alpha=log_alpha,
         actor_opt=actor_opt,
         critic_opt=critic_opt,

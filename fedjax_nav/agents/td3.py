@@ -12,11 +12,13 @@ Algorithm outline (the trainer's loop; rejax's td3.py in the same shape):
 
 half = the action box's half-widths (0.5, 1): noise is in units of the box, as the TD3 paper's is
 in units of max_action. The actor is networks.Actor, DDPG's, so `greedy` and export are DDPG's.
-Adam as `optax.scale_by_adam()` with the learning rates applied by hand: every field of `HParams`
-is traced (a sweep over them compiles once); the Nets fix shapes.
+Adam as `optax.scale_by_adam()` with the learning rate applied by hand. `hp` is the config's traced
+values (config.traced.HParams, read duck-typed: this layer does not import config): `hp.ddpg.lr`
+(actor and critic) and `hp.td3.tau`, `.policy_noise`, `.noise_clip`; a sweep over them compiles
+once. The Nets fix shapes.
 
-Federated: `SHARED` (actor, critics) is what a round averages; `TARGETS` (the `_targ` copies)
-only when targets are averaged too (`fed.include_targets`); the Adam moments stay local.
+Federated: what a round averages (actor, critics; the `_targ` copies only with `fed.include_targets`)
+is TD3's row of fedjax_nav/learner_table.py; the Adam moments stay local.
 """
 
 from __future__ import annotations
@@ -41,9 +43,6 @@ from fedjax_nav.agents.offpolicy import (
 )
 from fedjax_nav.agents.offpolicy import TwinNets as Nets
 
-SHARED = ("actor", "critics")
-TARGETS = ("actor_targ", "critics_targ")
-
 
 @struct.dataclass
 class State:
@@ -53,17 +52,6 @@ class State:
     critics_targ: dict
     actor_opt: optax.OptState
     critic_opt: optax.OptState
-
-
-@struct.dataclass
-class HParams:
-    """Traced hyperparameters (defaults: the TD3 paper's)."""
-
-    actor_lr: float = 1e-3
-    critic_lr: float = 1e-3
-    tau: float = 0.005  # target mix
-    policy_noise: float = 0.2  # target smoothing std, in box half-widths
-    noise_clip: float = 0.5  # |smoothing noise| bound, in box half-widths
 
 
 def make_nets(hidden: int = 64, depth: int = 3, activation: str = "relu") -> Nets:
@@ -98,22 +86,22 @@ def target_action(mu_next: jax.Array, noise: jax.Array, policy_noise, noise_clip
     return jnp.clip(mu_next + eps * half, dist.ACTION_LOW, dist.ACTION_HIGH)
 
 
-def target(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> jax.Array:
+def target(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> jax.Array:
     """The critics' regression target y = r + discount (1 - done) min_j Q_targ_j(s', a'), f32[B]
     (no gradient flows through it)."""
     mu_next = nets.actor.apply(state.actor_targ, batch.next_obs)
-    a_next = target_action(mu_next, jax.random.normal(key, mu_next.shape), hp.policy_noise, hp.noise_clip)
+    a_next = target_action(mu_next, jax.random.normal(key, mu_next.shape), hp.td3.policy_noise, hp.td3.noise_clip)
     return td_target(batch, min_q(nets.critic, state.critics_targ, batch.next_obs, a_next))
 
 
-def update_critic(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams) -> tuple[State, dict]:
+def update_critic(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> tuple[State, dict]:
     """One Adam step of both critics towards the smoothed twin target."""
     y = target(nets, state, batch, key, hp)
-    critics, opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.critic_lr)
+    critics, opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.ddpg.lr)
     return state.replace(critics=critics, critic_opt=opt), {"critic_loss": c_loss, "q": jnp.mean(q)}
 
 
-def update_actor(nets: Nets, state: State, batch: Batch, hp: HParams) -> tuple[State, dict]:
+def update_actor(nets: Nets, state: State, batch: Batch, hp) -> tuple[State, dict]:
     """One Adam step of the actor on -mean Q_1(s, mu(s)), then the soft target update."""
 
     def loss(p):
@@ -122,8 +110,8 @@ def update_actor(nets: Nets, state: State, batch: Batch, hp: HParams) -> tuple[S
         return -jnp.mean(q1)
 
     a_loss, grads = jax.value_and_grad(loss)(state.actor)
-    actor, opt = adam_step(ADAM, state.actor, grads, state.actor_opt, hp.actor_lr)
-    state = update_targets(state.replace(actor=actor, actor_opt=opt), hp.tau)
+    actor, opt = adam_step(ADAM, state.actor, grads, state.actor_opt, hp.ddpg.lr)
+    state = update_targets(state.replace(actor=actor, actor_opt=opt), hp.td3.tau)
     return state, {"actor_loss": a_loss}
 
 
@@ -134,7 +122,7 @@ def update_targets(state: State, tau) -> State:
     )
 
 
-def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp: HParams, actor_step) -> tuple[State, dict]:
+def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp, actor_step) -> tuple[State, dict]:
     """The critic step, then (where the bool `actor_step` is set: the trainer's policy delay) the
     actor step and the target update. A `lax.cond`: keep `actor_step` unbatched under vmap (from
     an unbatched counter) so that it stays a branch. Losses: critic_loss, q, actor_loss (0 where

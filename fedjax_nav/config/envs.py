@@ -5,7 +5,7 @@
     env = make_env(cfg, "learn")                       # the trainer
     env = make_env(cfg, "eval", noise=False)           # the probe: the run's robot, noiseless
     env = make_env(cfg, "eval", noise=True, episode_length=T)   # evaluation protocol
-    params = env_params(world, hp)                     # every traced env.* / robot.* value
+    params = env_params(world, hp)                     # every traced env.* / robot.* value of HParams
 
 Settings come from `env.*` (beams, range, T, collision test) and the robot model (`robot:`;
 `RobotConfig.env_settings()`); values are every traced `env.*` and `robot.*` field that is an
@@ -21,7 +21,7 @@ trainer and the evaluations build from it, and evaluation reads runs without imp
 from __future__ import annotations
 
 from fedjax_nav import worlds
-from fedjax_nav.config import Config, get, traced_fields
+from fedjax_nav.config.schema import Config, get, traced_fields
 from fedjax_nav.env.nav import EnvParams, NavEnv, make_params
 
 ENV_PREFIXES = ("env.", "robot.")  # the sections whose traced fields may be EnvParams fields
@@ -54,13 +54,13 @@ def _is_env_field(name: str) -> bool:
     return name.startswith(ENV_PREFIXES) and name.split(".", 1)[1] in EnvParams.__dataclass_fields__
 
 
-def env_values(hp: dict) -> dict:
-    """Every traced env.* / robot.* value of HParams (`training.hparams`) that is an EnvParams
+def env_values(hp) -> dict:
+    """Every traced env.* / robot.* value of HParams (`config.traced`) that is an EnvParams
     field, by field name."""
-    return {k.split(".", 1)[1]: v for k, v in hp.items() if _is_env_field(k)}
+    return {k.split(".", 1)[1]: v for k, v in hp.to_flat().items() if _is_env_field(k)}
 
 
-def env_params(world: worlds.World, hp: dict, random_starts: bool = False, **overrides) -> EnvParams:
+def env_params(world: worlds.World, hp, random_starts: bool = False, **overrides) -> EnvParams:
     """EnvParams for `world` (one room, or stacked [robots]) with the run's traced values;
     `overrides` (EnvParams fields) replace them, e.g. an evaluation's noise."""
     return make_params(world, random_starts=random_starts, **(env_values(hp) | overrides))

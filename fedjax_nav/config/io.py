@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from fedjax_nav.config import SECTIONS, TOP_LEVEL, Config, ConfigError
+from fedjax_nav.config.schema import SECTIONS, TOP_LEVEL, Config, ConfigError
 from fedjax_nav.config.validate import from_dict
 from fedjax_nav.messages import shorten, show
 

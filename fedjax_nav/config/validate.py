@@ -9,9 +9,7 @@ from collections.abc import Collection
 from dataclasses import fields
 from typing import Any
 
-from fedjax_nav.config import (
-    LEARNERS,
-    ON_POLICY_LEARNERS,
+from fedjax_nav.config.schema import (
     ROOM_FAMILIES,
     SECTIONS,
     TOP_LEVEL,
@@ -19,6 +17,8 @@ from fedjax_nav.config import (
     ConfigError,
     robot_problem,
 )
+from fedjax_nav.learner_table import get as learner_row
+from fedjax_nav.learner_table import off_policy
 from fedjax_nav.messages import show
 
 # ----------------------------------------------------------------------------- validation
@@ -215,22 +215,22 @@ def _check_learner(cfg: Config, src: str) -> None:
     """The learner against the method and its own loop sizes (docs/learners.md)."""
     from fedjax_nav.methods import METHODS
 
-    p, method = cfg.ppo, METHODS[cfg.method]
+    p, method, row = cfg.ppo, METHODS[cfg.method], learner_row(cfg.learner)
     # One shared network with its one buffer (snddpg) is one central on-policy learner over every
     # robot's environments; a shared buffer under separate networks (seddpg) would train each
     # network on the others' actions, which an on-policy learner cannot.
-    if cfg.learner in ON_POLICY_LEARNERS and method.shared_buffer and not method.shared_network:
+    if row.on_policy and method.shared_buffer and not method.shared_network:
         raise ConfigError(
             f"{src}: method {cfg.method} shares one replay buffer between the robots' own networks; learner "
             f"{cfg.learner} learns on-policy from its own policy's rollout and cannot (use iddpg, snddpg or a "
             "federated method)"
         )
-    if p.recurrent != "none" and cfg.learner != "ppo":
+    if p.recurrent != "none" and "ppo" not in row.sections:
         raise ConfigError(f"{src}: ppo.recurrent ({p.recurrent!r}) needs learner: ppo (learner is {cfg.learner!r})")
-    if p.normalize_obs and cfg.learner != "ppo":
+    if p.normalize_obs and "ppo" not in row.sections:
         raise ConfigError(f"{src}: ppo.normalize_obs needs learner: ppo (learner is {cfg.learner!r})")
-    _check_n_step(cfg, src, method)
-    if cfg.learner == "ppo":
+    _check_n_step(cfg, src, method, row.on_policy)
+    if "ppo" in row.sections:
         # the environments of one rollout: a robot's, or every robot's under one shared network
         n = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_network else 1)
         # a GRU's minibatches are whole sequences: they split the environments, not the rows
@@ -241,18 +241,20 @@ def _check_learner(cfg: Config, src: str) -> None:
             raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
 
 
-def _check_n_step(cfg: Config, src: str, method) -> None:
+def _check_n_step(cfg: Config, src: str, method, on_policy: bool) -> None:
     """ddpg.n_step: an off-policy learner's, and a window of n steps of every environment writing
     into one buffer must fit in it."""
     d = cfg.ddpg
-    if d.random_steps and cfg.learner in ON_POLICY_LEARNERS:  # PPO learns from its own policy's actions
-        raise ConfigError(f"{src}: ddpg.random_steps ({d.random_steps}) needs an off-policy learner: ddpg, td3, sac")
+    if d.random_steps and on_policy:  # PPO learns from its own policy's actions
+        raise ConfigError(
+            f"{src}: ddpg.random_steps ({d.random_steps}) needs an off-policy learner: {', '.join(off_policy())}"
+        )
     if d.n_step == 1:
         return
-    if cfg.learner in ON_POLICY_LEARNERS:
-        off_policy = ", ".join(n for n in LEARNERS if n not in ON_POLICY_LEARNERS)
+    if on_policy:
         raise ConfigError(
-            f"{src}: ddpg.n_step ({d.n_step}) needs an off-policy learner: {off_policy} (learner is {cfg.learner!r})"
+            f"{src}: ddpg.n_step ({d.n_step}) needs an off-policy learner: {', '.join(off_policy())} "
+            f"(learner is {cfg.learner!r})"
         )
     rows = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_buffer else 1)
     if d.n_step * rows > d.buffer_size:

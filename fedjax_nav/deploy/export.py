@@ -14,9 +14,10 @@ float32[batch, 2]; a recurrent policy also takes "h" float32[batch, gru] and ret
 numpy format's weights.npz).
 
 Every learner exports its greedy action, as `agents.learners.Learner.greedy` computes it: how is
-data, `EXPORTS` (learner -> the config section of its actor's sizes and the network kind that
-policy_template.py runs): DDPG's and TD3's actor ("heads"), SAC's and feed-forward PPO's
-squashed mean ("squashed"), recurrent PPO's GRU with its hidden state ("gru").
+data, the learner's row of fedjax_nav/learner_table.py (`actor_section`: the config section of its
+actor's sizes; `export`, `recurrent`: the network kind that policy_template.py runs, `actor_kind`):
+DDPG's and TD3's actor ("heads"), SAC's and feed-forward PPO's squashed mean ("squashed"),
+recurrent PPO's GRU with its hidden state ("gru").
 
 The ONNX graph is built by `fedjax_nav.deploy.onnx_graph` (why not jax2onnx: there).
 
@@ -30,7 +31,6 @@ import json
 import shutil
 import sys
 from pathlib import Path
-from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -49,32 +49,16 @@ def _project():
 FORMATS = ("numpy", "onnx")
 
 
-class ActorExport(NamedTuple):
-    """How one learner's greedy actor is exported (export_run reads this, never the learner's name)."""
+def actor_kind(cfg) -> str:
+    """The network kind of policy_template.py that runs the run's greedy actor ("heads", "squashed"
+    or "gru"), from its learner's row (export_run reads this, never the learner's name)."""
+    from fedjax_nav.config import get
+    from fedjax_nav.learner_table import get as learner_row
 
-    section: str  # the config section holding the actor's hidden, depth, activation
-    kind: Callable  # (cfg) -> the network kind of policy_template.py: "heads", "squashed" or "gru"
-
-
-def _heads(cfg) -> str:
-    return "heads"
-
-
-def _squashed(cfg) -> str:
-    return "squashed"
+    row = learner_row(cfg.learner)
+    return "gru" if row.recurrent and get(cfg, row.recurrent) != "none" else row.export
 
 
-def _ppo_kind(cfg) -> str:
-    return "gru" if cfg.ppo.recurrent == "gru" else "squashed"
-
-
-EXPORTS: dict[str, ActorExport] = {
-    "ddpg": ActorExport("ddpg", _heads),  # agents/networks.Actor: sigmoid and tanh heads
-    "td3": ActorExport("ddpg", _heads),  # the same actor
-    "sac": ActorExport("ddpg", _squashed),  # SquashedGaussianActor's mean (its log-std head is not needed)
-    "ppo": ActorExport("ppo", _ppo_kind),  # MeanNet, or RecurrentMLP with its GRU
-}
-EXPORTABLE = tuple(EXPORTS)  # the learners export supports
 TEMPLATE = Path(__file__).with_name("policy_template.py")
 
 
@@ -195,11 +179,12 @@ def export_run(
         raise ExportError(str(e)) from None
     flat, seed, agent = select(run, seed, agent)
     cfg = run.cfg
-    if cfg.learner not in EXPORTS:
-        raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports {', '.join(EXPORTABLE)}")
-    how = EXPORTS[cfg.learner]
-    kind = how.kind(cfg)
-    d = getattr(cfg, how.section)
+    from fedjax_nav.learner_table import get as learner_row
+
+    kind = actor_kind(cfg)
+    if kind not in WEIGHTS:
+        raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports the actors {', '.join(WEIGHTS)}")
+    d = getattr(cfg, learner_row(cfg.learner).actor_section)
     actor = _tree_map_index(run.actor_params, flat)
     weights = {**WEIGHTS[kind](actor, d.depth), **input_weights(actor, input_affine)}
     meta = _export_meta(cfg, d, run_dir, fmt, seed, agent, flat, kind, weights)

@@ -80,31 +80,36 @@ def greedy_policy(cfg) -> Callable | MemoryPolicy:
     mode; a recurrent PPO's GRU state starts at `memory(nets)` (zeros) with `first` set at each
     episode's first step and is carried step to step, as in the trainer's probe). One object per
     learner and network settings, so that runs alike share one compiled evaluation."""
-    if cfg.learner == "ddpg":
-        d = cfg.ddpg
-        return actor_policy(d.hidden, d.depth, d.activation)
     from fedjax_nav.config import values
+    from fedjax_nav.learner_table import get
 
-    mine = {k: v for k, v in values(cfg).items() if k.split(".")[0] in ("learner", "ddpg", cfg.learner)}
+    row = get(cfg.learner)
+    if row.plain_actor:
+        d = getattr(cfg, row.actor_section)
+        return actor_policy(d.hidden, d.depth, d.activation)
+    mine = {k: v for k, v in values(cfg).items() if k.split(".")[0] in ("learner", *row.sections)}
     return _learner_policy(cfg.learner, tuple(sorted(mine.items())))
 
 
 def _expected_actor(cfg, obs_size: int):
     """The actor's parameter shapes for the run's learner (jax.eval_shape: nothing computed)."""
-    if cfg.learner == "ddpg":
+    from fedjax_nav.learner_table import get
+
+    row = get(cfg.learner)
+    if row.plain_actor:
         from fedjax_nav.agents import ddpg
 
-        d = cfg.ddpg
+        d = getattr(cfg, row.actor_section)
         nets = ddpg.make_nets(d.hidden, d.depth, d.activation)
         return jax.eval_shape(nets.actor.init, jax.random.key(0), jnp.zeros((obs_size,)))
     from fedjax_nav.agents import learners
-    from fedjax_nav.config import traced_fields, values
+    from fedjax_nav.config import traced, values
 
     learner = learners.get(cfg.learner)
     nets = learner.make_nets(values(cfg))
     # only shapes are asked: every traced value as an f32 scalar (evaluation does not import
     # training, which builds the real HParams)
-    hp = {name: jax.ShapeDtypeStruct((), jnp.float32) for name in traced_fields()}
+    hp = traced.shapes()
     return jax.eval_shape(lambda k, h: learner.policy(learner.init(nets, k, obs_size, h)), jax.random.key(0), hp)
 
 

@@ -23,6 +23,7 @@ with machine, versions and command, to a markdown file (docs/benchmarks.md).
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 import time
@@ -30,6 +31,8 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from fedjax_nav.config import Config
 
 
 def _time(fn, *args, repeat: int = 3) -> float:
@@ -152,20 +155,35 @@ def _train_config(overrides, learner: str = "ddpg"):
     return from_dict({**apply_overrides(data, list(overrides)), "learner": learner})
 
 
+THESIS_LEARNER = Config().learner  # the default: its rows are labelled without it, as before
+
+
+def _learner_label(cfg) -> str:
+    """The learner's name, with its recurrent field's value where it has a memory ("ppo-gru")."""
+    from fedjax_nav.config import get
+    from fedjax_nav.learner_table import get as learner_row
+
+    row = learner_row(cfg.learner)
+    memory = get(cfg, row.recurrent) if row.recurrent else "none"
+    return cfg.learner + ("" if memory == "none" else f"-{memory}")
+
+
 def update_events(cfg, episodes: int) -> int:
     """Update events of one network in `episodes` episodes (PPO: one per rollout; off-policy: one
     every ddpg.train_every steps)."""
-    from fedjax_nav.config import ON_POLICY_LEARNERS
+    from fedjax_nav.config import get
+    from fedjax_nav.learner_table import get as learner_row
 
-    every = cfg.ppo.rollout if cfg.learner in ON_POLICY_LEARNERS else cfg.ddpg.train_every
+    every = get(cfg, learner_row(cfg.learner).update_every)
     return cfg.env.episode_length // every * episodes
 
 
 def gradient_steps(cfg, nets: int, episodes: int) -> int:
     """Gradient steps of every network in `episodes` episodes (update events x steps per event)."""
-    from fedjax_nav.config import ON_POLICY_LEARNERS
+    from fedjax_nav.config import get
+    from fedjax_nav.learner_table import get as learner_row
 
-    per_event = cfg.ppo.epochs * cfg.ppo.minibatches if cfg.learner in ON_POLICY_LEARNERS else cfg.ddpg.gradient_steps
+    per_event = math.prod(get(cfg, name) for name in learner_row(cfg.learner).steps_per_update)
     return nets * update_events(cfg, episodes) * per_event
 
 
@@ -219,7 +237,7 @@ def bench_train(
             {
                 "bench": "train",
                 "method": cfg.method,
-                "learner": cfg.learner + ("-gru" if cfg.learner == "ppo" and cfg.ppo.recurrent == "gru" else ""),
+                "learner": _learner_label(cfg),
                 "envs_per_robot": cfg.env.envs_per_robot,
                 "seeds": s,
                 "robots": N,
@@ -377,20 +395,20 @@ def format_rows(rows: list[dict]) -> str:
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:
-            learner, per = r.get("learner", "ddpg"), r.get("envs_per_robot", 1)
+            learner, per = r.get("learner", THESIS_LEARNER), r.get("envs_per_robot", 1)
             flops = (
                 f"{r['gflops']:.1f} GFLOP/s = {100 * (r['fraction_of_ceiling'] or 0):.0f}% of ceiling; "
                 if r.get("gflops") is not None
                 else ""
             )
             lines.append(
-                f"| train {r['method']}{f' ({learner})' if learner != 'ddpg' else ''} | "
+                f"| train {r['method']}{f' ({learner})' if learner != THESIS_LEARNER else ''} | "
                 f"{r['seeds']} seed(s) x {r['robots']} robots"
                 f"{f' x {per} environments' if per > 1 else ''}"
                 f"{f', seeds over {d} devices' if (d := r.get('devices', 1)) > 1 else ''}"
                 f"{f', {rooms} rooms, new every episode' if (rooms := r.get('rooms', 'fixed')) != 'fixed' else ''} | "
                 f"{r['agent_steps_per_s']:,.0f} agent-steps/s, {r['agent_updates_per_s']:,.0f} "
-                f"{'agent-updates/s' if learner == 'ddpg' else 'gradient steps/s'}, {flops}"
+                f"{'agent-updates/s' if learner == THESIS_LEARNER else 'gradient steps/s'}, {flops}"
                 f"episode {r['episode_s']:.2f} s, 125-episode run (all its seeds) ~{r['run_estimate_s']:.0f} s; "
                 f"compile ~{r['compile_s']:.1f} s (first call minus a steady one) |"
             )

@@ -1,7 +1,7 @@
 """Checkpoints of a whole training run with orbax's CheckpointManager.
 
 A checkpoint at step `e` (episodes completed) holds the stacked TrainState of every seed
-(parameters, targets, optimiser states, replay buffers, env states, epsilon, PRNG keys) and the
+(parameters, targets, optimiser states, replay buffers, env states, the exploration carry, PRNG keys) and the
 metrics of episodes 0 .. e-1, so a resumed run rebuilds metrics.csv and continues bitwise as the
 run that was never interrupted. Saves are asynchronous; a kill during a save leaves a temporary
 folder that `latest_step()` ignores, so the previous checkpoint is used; the writer removes such

@@ -35,7 +35,7 @@ def aggregator(tr, hp: HParams) -> agg.Aggregator:
     takes), wrapped to keep the last global model when the attack reads it and the rule does not."""
     name = rule_name(tr)
     rule = agg.rule(name)
-    out = rule.make(**{h: hp[f"fed.{h}"] for h in rule.hparams})
+    out = rule.make(**{h: getattr(hp.fed, h) for h in rule.hparams})
     if tr.cfg.fed.attack in attacks.NEEDS_REFERENCE and not rule.keeps_reference:
         out = agg.with_reference(out)
     return out
@@ -44,7 +44,7 @@ def aggregator(tr, hp: HParams) -> agg.Aggregator:
 def participation(tr, key: jax.Array, hp: HParams) -> jax.Array:
     """bool[robots]: who takes part in this round, each with probability fed.participation
     (uniform [0, 1) < p: every client when p = 1)."""
-    return (jax.random.uniform(key, (tr.num_robots,)) < hp["fed.participation"]) & jnp.asarray(tr.real)
+    return (jax.random.uniform(key, (tr.num_robots,)) < hp.fed.participation) & jnp.asarray(tr.real)
 
 
 def federated_round(tr, state, hp: HParams) -> tuple[object, dict]:
@@ -62,12 +62,12 @@ def federated_round(tr, state, hp: HParams) -> tuple[object, dict]:
     k_part, k_attack = jax.random.split(jax.random.fold_in(state.key, FED_STREAM))
     mask = participation(tr, k_part, hp)
     n = jnp.sum(mask.astype(jnp.int32))
-    held = n >= jnp.maximum(hp["fed.min_clients"], 1)
+    held = n >= jnp.maximum(hp.fed.min_clients, 1)
     sent, r_sent = own, r
     if f.attack != "none" and f.byzantine > 0:
         byz = jnp.asarray(tr.byzantine)
         ref = agg.reference(state.agg_state) if f.attack in attacks.NEEDS_REFERENCE else None
-        sent = attacks.apply_attack(f.attack, own, byz, k_attack, hp["fed.attack_scale"], ref)
+        sent = attacks.apply_attack(f.attack, own, byz, k_attack, hp.fed.attack_scale, ref)
         if tr.method.sends_rewards:
             r_sent = attacks.inflate_reward(r, byz)
     new, agg_state = aggregator(tr, hp).update(sent, r_sent, state.agg_state, mask)

@@ -1,12 +1,11 @@
-"""HParams: the traced values of a config, keyed by their config names.
+"""HParams: the traced values of a config, typed (`fedjax_nav.config.traced`: one struct per
+section, generated from the `traced=True` fields), and their stacking for sweeps.
 
-    hp = hparams_from_config(cfg)     # {"ddpg.gamma": f32[], "env.v_max": f32[], ...}
-    hp["fed.tau"]
+    hp = hparams_from_config(cfg)     # hp.ddpg.gamma: f32[], hp.env.v_max: f32[], ...
+    hp.fed.tau
 
-The keys are exactly `fedjax_nav.config.traced_fields()` (the fields declared `traced=True`):
-one declaration, so a field marked traced is traced everywhere. Each leaf is a scalar, or
-[rows] when a sweep batches it; `hp_axes` gives the matching vmap axes. A plain dict is a
-pytree, so jit, vmap, shardings and checkpoints take it as it is.
+Each leaf is a scalar, or [rows] when a sweep batches it; `hp_axes` gives the matching vmap axes.
+Sweeps compare and stack rows by dotted name (`HParams.to_flat` / `from_flat`).
 """
 
 from __future__ import annotations
@@ -15,19 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fedjax_nav.config import Config, field_info, get, traced_fields
+from fedjax_nav.config.traced import HParams, dtype, hparams_from_config
 
-HParams = dict  # str -> jax.Array
-
-
-def dtype(name: str):
-    """int32 for integer fields, float32 for the rest."""
-    typ = field_info(name).type
-    return jnp.int32 if typ in (int, "int") else jnp.float32
-
-
-def hparams_from_config(cfg: Config) -> HParams:
-    return {name: jnp.asarray(get(cfg, name), dtype(name)) for name in traced_fields()}
+__all__ = ["HParams", "dtype", "hp_axes", "hparams_from_config", "stack_hparams", "varying_fields"]
 
 
 def hp_axes(hp: HParams):
@@ -36,10 +25,11 @@ def hp_axes(hp: HParams):
 
 
 def varying_fields(hps: list[HParams]) -> frozenset:
-    """Names whose value differs between rows (they get a batch axis; the rest stay scalars, so
-    that the period gates they drive stay real conds)."""
+    """Dotted names whose value differs between rows (they get a batch axis; the rest stay
+    scalars, so that the period gates they drive stay real conds)."""
+    flat = [h.to_flat() for h in hps]
     return frozenset(
-        k for k in hps[0] if any(not np.array_equal(np.asarray(h[k]), np.asarray(hps[0][k])) for h in hps[1:])
+        k for k in flat[0] if any(not np.array_equal(np.asarray(f[k]), np.asarray(flat[0][k])) for f in flat[1:])
     )
 
 
@@ -47,7 +37,10 @@ def stack_hparams(hps: list[HParams], batched: frozenset | None = None) -> HPara
     """Rows' HParams -> one HParams with leaves [rows] for the names in `batched` (default: those
     that differ between these rows) and scalars for the rest."""
     batched = varying_fields(hps) if batched is None else batched
-    return {
-        k: jnp.asarray(np.stack([np.asarray(h[k]) for h in hps])) if k in batched else jnp.asarray(hps[0][k])
-        for k in hps[0]
-    }
+    flat = [h.to_flat() for h in hps]
+    return HParams.from_flat(
+        {
+            k: jnp.asarray(np.stack([np.asarray(f[k]) for f in flat])) if k in batched else jnp.asarray(flat[0][k])
+            for k in flat[0]
+        }
+    )

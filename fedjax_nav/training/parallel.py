@@ -1,13 +1,13 @@
 """Placing a run on several devices and hosts: meshes, the sharding of the stacked TrainState,
 and `jax.distributed` start-up.
 
-The trainer's state is stacked `[seeds, clients, ...]` (clients = robots: agents, buffers,
-env states, observations and reward sums carry the client axis; epsilon, PRNG keys, reward step
-counts and the aggregator's state (GS's global model) do not). A mesh with an axis named `"clients"` spreads the client
-axis over its devices, one named `"seeds"` the seed axis (a 2-D mesh may name both). The
-trainer's program is unchanged: `jax.jit` with these shardings lets XLA's SPMD partitioner run
-each client's env steps and DDPG updates on the device that holds it, and turn the federated
-step's mean over the client axis into the cross-device collective.
+The trainer's state is stacked `[seeds, clients, ...]` (clients = robots: agents, buffers, env
+states, observations and reward sums carry the client axis; the exploration carry (DDPG: epsilon),
+PRNG keys, reward step counts and the aggregator's state (GS's global model) do not). A mesh with an
+axis named `"clients"` spreads the client axis over its devices, one named `"seeds"` the seed axis
+(a 2-D mesh may name both). The trainer's program is unchanged: `jax.jit` with these shardings lets
+XLA's SPMD partitioner run each client's env steps and DDPG updates on the device that holds it, and
+turn the federated step's mean over the client axis into the cross-device collective.
 
 Which leaves carry the client axis is decided by field name (`CLIENT_FIELDS`), not by shape.
 """

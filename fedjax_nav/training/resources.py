@@ -14,8 +14,10 @@ import jax
 from fedjax_nav.config import ConfigError
 from fedjax_nav.config.memory import nbytes, over_budget, size
 from fedjax_nav.training.hparams import hparams_from_config
-from fedjax_nav.training.sweep.spec import STATE_BYTES_FACTOR
 from fedjax_nav.training.trainer import Trainer
+
+# peak memory of a chunk per row / bytes of one TrainState row (donated); sweeps plan with it too
+STATE_BYTES_FACTOR = 3
 
 # Host bytes per metrics row (episode x seed x robot): the arrays, the pandas frame and its CSV text.
 METRICS_ROW_BYTES = 16 * 8 * 3

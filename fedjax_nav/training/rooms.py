@@ -141,7 +141,7 @@ class TrainRooms:
         if self.learnability:
             state, world = self._bank_world(state, hp, ep)
         elif self.procedural:
-            every = hp["env.room_every"]
+            every = hp.env.room_every
             world = jax.lax.cond(
                 ep % every == 0,
                 lambda: self.draw(state.room_stream, ep // every, density(hp, ep)),
@@ -169,18 +169,18 @@ class TrainRooms:
     def draw_bank(self, bank: RoomBank, key: jax.Array, hp, stream: jax.Array, block) -> RoomBank:
         """Every environment's draw at the renewal of block `block` (`draw_room` per row); the rows of
         family "fixed" never draw fresh (their room is their playground)."""
-        fresh_prob = jnp.where(self.banked, jnp.asarray(hp["env.room_fresh"], jnp.float32), 0.0)
+        fresh_prob = jnp.where(self.banked, jnp.asarray(hp.env.room_fresh, jnp.float32), 0.0)
         fresh_counters = self.block_counters(stream, jnp.asarray(block, jnp.uint32) + jnp.uint32(self.bank_size))
         keys = jax.random.split(key, self.num_rooms)
         rooms, p, slot, fresh = jax.vmap(draw_room, in_axes=(0, 0, 0, 0, 0, None))(
-            keys, bank.rooms, bank.p, fresh_counters, fresh_prob, hp["env.room_floor"]
+            keys, bank.rooms, bank.p, fresh_counters, fresh_prob, hp.env.room_floor
         )
         return RoomBank(rooms=rooms, p=p, slot=slot, fresh=fresh)
 
     def _bank_world(self, state, hp, ep):
         """At an episode's reset: on a renewal (ep % env.room_every == 0) each environment draws
         from its bank and its room is generated; otherwise it keeps its room (and slot)."""
-        every = hp["env.room_every"]
+        every = hp.env.room_every
         key = jax.random.fold_in(state.key, ROOM_BANK)
 
         def renew():
@@ -197,7 +197,7 @@ class TrainRooms:
         """At an episode's end: each environment's goal share (goals / attempts, i32[environments]
         each, summed over the episode) updates p of its current room (`update_score`)."""
         outcome = goals.astype(jnp.float32) / jnp.maximum(attempts, 1).astype(jnp.float32)
-        rate = jnp.where(self.banked, jnp.asarray(hp["env.room_ema"], jnp.float32), 0.0)
+        rate = jnp.where(self.banked, jnp.asarray(hp.env.room_ema, jnp.float32), 0.0)
         return bank.replace(p=jax.vmap(update_score)(bank.p, bank.slot, outcome, rate))
 
     def bank_metrics(self, bank: RoomBank) -> dict:
@@ -267,7 +267,7 @@ def density(hp, ep) -> jax.Array:
     """The curriculum's obstacle density at episode `ep`: env.room_density_start rising linearly
     to 1 over env.room_curriculum_episodes episodes; 1 without a curriculum (0 episodes). Both
     are traced: a sweep over them compiles once."""
-    n = hp["env.room_curriculum_episodes"]
-    start = jnp.asarray(hp["env.room_density_start"], jnp.float32)
+    n = hp.env.room_curriculum_episodes
+    start = jnp.asarray(hp.env.room_density_start, jnp.float32)
     ramp = start + (1.0 - start) * jnp.minimum(jnp.asarray(ep, jnp.float32) / jnp.maximum(n, 1), 1.0)
     return jnp.where(n > 0, ramp, jnp.float32(1.0))

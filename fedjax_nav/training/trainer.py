@@ -65,7 +65,7 @@ class TrainState:
     buffers: Any  # the learner's storage: replay rows (buffer.Transition) or a rollout (ppo.Rollout)
     env_state: EnvState
     obs: jax.Array  # f32[environments, obs]
-    epsilon: jax.Array  # f32[] DDPG's exploration probability (decayed for every learner; only DDPG reads it)
+    explore: Any  # the learner's exploration carry (learner.explore_init; DDPG: its epsilon f32[], else ())
     agg_state: Any  # the aggregator's state (a NamedTuple of fedjax_nav.federated.aggregators; no client axis)
     reward_sum: jax.Array  # f32[robots] since the last federated step
     reward_steps: jax.Array  # f32[]
@@ -166,7 +166,7 @@ class Trainer:
             buffers=buffers,
             env_state=env_state,
             obs=obs,
-            epsilon=jnp.asarray(hp["ddpg.epsilon_start"], jnp.float32),
+            explore=self.learner.explore_init(hp),
             agg_state=self.aggregator(hp).init(self.real_rows(self.shared(agents))),
             reward_sum=jnp.zeros(self.num_robots),
             reward_steps=jnp.float32(0),
@@ -204,7 +204,7 @@ class Trainer:
         """(actions f32[environments, 2], the learner's extras, its new memory) for one step."""
 
         def one(agent, obs, k, memory, first):
-            return self.learner.explore(self.nets, agent, obs, k, hp, state.epsilon, memory, first)
+            return self.learner.explore(self.nets, agent, obs, k, hp, state.explore, memory, first)
 
         keys = jax.random.split(key, self.num_envs)
         return self._by_net(one, state.agents, state.obs, keys, state.memory, state.first)
@@ -242,7 +242,7 @@ class Trainer:
             warm = jax.random.uniform(
                 jax.random.fold_in(k_act, 1), actions.shape, minval=ACTION_LOW, maxval=ACTION_HIGH
             )
-            actions = jnp.where(g < hp["ddpg.random_steps"], warm, actions)
+            actions = jnp.where(g < hp.ddpg.random_steps, warm, actions)
         env_keys = jax.random.split(k_env, self.num_envs)
         obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
             env_keys, state.env_state, actions, env_params
@@ -275,7 +275,7 @@ class Trainer:
             env_state=env_state,
             obs=obs2,
             key=key,
-            epsilon=state.epsilon * hp["ddpg.epsilon_decay"],
+            explore=self.learner.explore_next(state.explore, hp),
             reward_sum=state.reward_sum + mean_reward,
             reward_steps=state.reward_steps + 1.0,
             memory=memory,
@@ -287,7 +287,7 @@ class Trainer:
             outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
         fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
-            fed_now = (g + 1) % hp["fed.period"] == 0
+            fed_now = (g + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
         out = StepMetrics(
             reward=mean_reward,
@@ -324,7 +324,7 @@ class Trainer:
             state = state.replace(bank=self.rooms.score(state.bank, hp, sums.env_goals, sums.env_attempts))
         fed_end, fs = jnp.int32(0), NO_ROUND
         if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
-            fed_now = (ep + 1) % hp["fed.period"] == 0
+            fed_now = (ep + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
         metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
@@ -332,7 +332,7 @@ class Trainer:
         metrics["fed_events"] = metrics["fed_events"] + fed_end
         metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
         metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
-        metrics["epsilon"] = state.epsilon
+        metrics["epsilon"] = self.learner.explore_metric(state.explore)
         metrics["params_finite"] = jax.vmap(all_finite)(self.learner.shared(state.agents))  # [n_nets]
         if self.rooms.learnability:  # room_p, fresh_rooms: [robots], means over each robot's environments
             metrics |= {k: self._per_robot(v, jnp.mean) for k, v in self.rooms.bank_metrics(state.bank).items()}
@@ -385,7 +385,7 @@ class Trainer:
 
         if states is None or hp is None:
             raise ValueError("compiled_chunk(mesh=...) needs the states and hp templates")
-        self.check_mesh(mesh, jax.tree.leaves(states.epsilon)[0].shape[0])
+        self.check_mesh(mesh, states.reward_steps.shape[0])
         st = parallel.state_shardings(states, mesh)
         rep = parallel.replicated(mesh)
         return jax.jit(

@@ -11,6 +11,7 @@ import numpy as np
 from fedjax_nav.config.memory import available_memory, size
 from fedjax_nav.config.sweepfile import SweepError
 from fedjax_nav.training.hparams import HParams, hparams_from_config, stack_hparams, varying_fields
+from fedjax_nav.training.resources import memory_estimate
 from fedjax_nav.training.sweep.spec import Job, group_key
 from fedjax_nav.training.trainer import Trainer
 
@@ -21,8 +22,6 @@ def point_bytes(trainer: Trainer) -> tuple[int, int]:
     TrainState x STATE_BYTES_FACTOR, one update's batches and activations of every network and
     its metrics tables; once, the worlds. A batch of n rows then needs n x per row + once, and a
     point alone in its batch is refused exactly when `train` would refuse its config."""
-    from fedjax_nav.training.resources import memory_estimate  # resources imports sweep.spec: a cycle at the top
-
     est = memory_estimate(trainer)
     once = est["worlds"]
     return (est["total"] - once) // trainer.cfg.run.seeds, once  # every other part is per seed

@@ -29,8 +29,6 @@ from dataclasses import dataclass
 from fedjax_nav.config import Config, traced_fields
 from fedjax_nav.config.sweepfile import BOOKKEEPING, SweepError, flat_config, point_id
 
-STATE_BYTES_FACTOR = 3  # peak memory of a chunk per row / bytes of one TrainState row (donated)
-
 
 def group_key(cfg: Config) -> str:
     """Configs with equal keys share one Trainer and one compilation."""

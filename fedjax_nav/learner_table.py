@@ -1,0 +1,136 @@
+"""The learners as data, the one table every layer reads (docs/learners.md, "Adding a learner"), as
+`methods.py` is for the methods: a row per learner names its config sections, whether it learns
+on-policy, what a federated round averages, how its greedy actor is evaluated and exported, how its
+update events are counted, and where its implementation (an `agents.learners.Learner`) lives, as
+a "module:attribute" string resolved only when asked (`implementation`), so that this table stays
+free of jax. The config's `learner` choices are this table's keys; nothing in the package branches
+on a learner's name.
+
+A learner added from outside the package (tests/toy_learner.py) is one module holding its
+`Learner` and one row given to `register`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LearnerRow:
+    name: str
+    sections: tuple[str, ...]  # the config sections it reads (validate: a section's options need its learner)
+    on_policy: bool  # learns from its own policy's rollout: no buffer to share, no random warm-up, no n-step
+    implementation: str  # "module:attribute" of its agents.learners.Learner
+    shared: tuple[str, ...]  # the agent state's fields a federated round averages
+    targets: tuple[str, ...]  # the target networks' fields, averaged too with fed.include_targets
+    actor_section: str  # the section of the actor's hidden, depth, activation (evaluation, export)
+    export: str  # the exported actor's network kind (deploy/policy_template.py): "heads" or "squashed"
+    update_every: str  # the dotted config field of the steps between two update events
+    steps_per_update: tuple[str, ...]  # dotted config fields whose product is the gradient steps per event
+    recurrent: str = ""  # a dotted choice field: where its value is not "none" the actor is a GRU ("gru" export)
+    plain_actor: bool = False  # evaluated by evaluation.policies.actor_policy(hidden, depth, activation)
+
+    def learner(self):
+        """Its `agents.learners.Learner` (imports the implementation's module: jax)."""
+        module, attribute = self.implementation.split(":")
+        return getattr(importlib.import_module(module), attribute)
+
+
+_OFF_POLICY = {
+    "on_policy": False,
+    "actor_section": "ddpg",
+    "update_every": "ddpg.train_every",
+    "steps_per_update": ("ddpg.gradient_steps",),
+}
+
+LEARNERS: dict[str, LearnerRow] = {
+    r.name: r
+    for r in [
+        LearnerRow(
+            "ddpg",
+            ("ddpg",),
+            implementation="fedjax_nav.agents.learners:DDPG",
+            shared=("actor", "critic"),
+            targets=("actor_targ", "critic_targ"),
+            export="heads",  # agents/networks.Actor: sigmoid and tanh heads
+            plain_actor=True,  # the thesis's evaluation program
+            **_OFF_POLICY,
+        ),
+        LearnerRow(
+            "td3",
+            ("ddpg", "td3"),
+            implementation="fedjax_nav.agents.learners:TD3",
+            shared=("actor", "critics"),
+            targets=("actor_targ", "critics_targ"),
+            export="heads",  # DDPG's actor
+            **_OFF_POLICY,
+        ),
+        LearnerRow(
+            "sac",
+            ("ddpg", "sac"),
+            implementation="fedjax_nav.agents.learners:SAC",
+            shared=("actor", "critics", "log_alpha"),
+            targets=("critics_targ",),
+            export="squashed",  # SquashedGaussianActor's mean (its log-std head is not needed)
+            **_OFF_POLICY,
+        ),
+        LearnerRow(
+            "ppo",
+            ("ppo",),
+            on_policy=True,
+            implementation="fedjax_nav.agents.learners:PPO",
+            shared=("actor", "log_std", "value"),
+            targets=(),
+            actor_section="ppo",
+            export="squashed",  # MeanNet: the Gaussian's mean through the tanh squash
+            recurrent="ppo.recurrent",  # RecurrentMLP with its GRU
+            update_every="ppo.rollout",
+            steps_per_update=("ppo.epochs", "ppo.minibatches"),
+        ),
+    ]
+}
+
+
+class _Names(Sequence):
+    """The table's names as a live sequence: the config's `learner` choices (a registered row counts)."""
+
+    def __getitem__(self, i):
+        return tuple(LEARNERS)[i]
+
+    def __len__(self) -> int:
+        return len(LEARNERS)
+
+    def __contains__(self, name) -> bool:
+        return name in LEARNERS
+
+    def __repr__(self) -> str:
+        return repr(tuple(LEARNERS))
+
+
+NAMES = _Names()
+
+
+def get(name: str) -> LearnerRow:
+    try:
+        return LEARNERS[name]
+    except KeyError:
+        raise ValueError(f"unknown learner {name!r}; allowed: {', '.join(LEARNERS)}") from None
+
+
+def off_policy() -> tuple[str, ...]:
+    """The names of the learners that learn from a replay buffer."""
+    return tuple(n for n, r in LEARNERS.items() if not r.on_policy)
+
+
+def register(row: LearnerRow) -> None:
+    """Add a learner's row (a name not yet in the table): the config accepts it from then on."""
+    if row.name in LEARNERS:
+        raise ValueError(f"learner {row.name!r} is already in the table")
+    LEARNERS[row.name] = row
+
+
+def unregister(name: str) -> None:
+    """Remove a row that `register` added."""
+    del LEARNERS[name]

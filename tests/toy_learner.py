@@ -1,0 +1,42 @@
+"""A learner from outside the package, for tests/test_toy_learner.py: DDPG's networks, replay and
+update with Gaussian exploration noise instead of epsilon-greedy (no exploration carry). All of it
+is this module's `TOY` and the row `ROW`; nothing in fedjax_nav is edited to add it
+(docs/learners.md, "Adding a learner")."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from fedjax_nav.agents import ddpg, learners, td3
+from fedjax_nav.learner_table import LearnerRow
+
+NOISE = 0.3  # exploration noise std, in box half-widths
+
+
+def _explore(nets, state, obs, key, hp, carry, memory, first):
+    return td3.act(nets, state.actor, obs, key, jnp.float32(NOISE)), (), memory
+
+
+# DDPG's functions with another exploration; the carry functions back at the Learner's defaults
+_defaults = learners.Learner._field_defaults
+TOY = learners.DDPG._replace(
+    explore=_explore,
+    greedy=learners.DDPG.greedy,
+    explore_init=_defaults["explore_init"],
+    explore_next=_defaults["explore_next"],
+    explore_metric=_defaults["explore_metric"],
+)
+
+ROW = LearnerRow(
+    "toy",
+    ("ddpg",),
+    on_policy=False,
+    implementation=f"{__name__}:TOY",
+    shared=("actor", "critic"),
+    targets=("actor_targ", "critic_targ"),
+    actor_section="ddpg",
+    export="heads",
+    update_every="ddpg.train_every",
+    steps_per_update=("ddpg.gradient_steps",),
+)
+assert ddpg.Actor is not None  # the actor the row's "heads" export reads
