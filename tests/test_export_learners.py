@@ -21,9 +21,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from fedjax_nav.agents import learners, normalize, ppo  # noqa: E402
-from fedjax_nav.config import from_dict, save_config, traced_fields, values  # noqa: E402
+from fedjax_nav.config import from_dict, save_config, values  # noqa: E402
 from fedjax_nav.deploy import export as ex  # noqa: E402
 from fedjax_nav.evaluation import load_run  # noqa: E402
+from fedjax_nav.training.hparams import hparams_from_config  # noqa: E402
 
 TOL = 1e-5
 N_OBS = 1024
@@ -82,7 +83,7 @@ def case(request, tmp_path_factory):
     save_config(cfg, root / "config.yaml")
     learner = learners.get(cfg.learner)
     nets = learner.make_nets(values(cfg))
-    hp = {k: jnp.float32(v) for k, v in values(cfg).items() if k in traced_fields()}
+    hp = hparams_from_config(cfg)
     per = []
     for i, k in enumerate(jax.random.split(jax.random.key(11), 2)):  # 1 seed x 2 robots
         actor = learner.policy(learner.init(nets, k, NUM_BEAMS + 4, hp))
