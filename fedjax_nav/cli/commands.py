@@ -166,8 +166,9 @@ def _start_line(args: argparse.Namespace, cfg, out, mesh) -> str:
     )
     n_envs = cfg.env.envs_per_robot
     envs = f" ({n_envs} environments per robot)" if n_envs > 1 else ""
+    learner = "" if cfg.learner == type(cfg)().learner else f" ({cfg.learner})"  # the default learner unnamed
     return (
-        f"{verb} {cfg.method}{'' if cfg.learner == 'ddpg' else f' ({cfg.learner})'} on "
+        f"{verb} {cfg.method}{learner} on "
         f"{', '.join(cfg.env.worlds)}{envs}: {cfg.run.episodes} episodes x "
         f"{cfg.env.episode_length} steps, {cfg.run.seeds} seed(s){where} -> {out}"
     )
