@@ -27,6 +27,29 @@ import yaml  # noqa: E402
 from fedjax_nav import worlds  # noqa: E402
 from fedjax_nav.env import NavEnv, lidar, make_params, nearest_distance  # noqa: E402
 
+# The costliest test files, costliest first, for the order in which the two xdist workers take files
+# (pyproject's addopts: `--dist loadfile --no-loadscope-reorder`). xdist's default order is by the
+# number of tests in a file, which queues these few-test, compile-heavy files last (the fingerprint
+# file, 3 tests and about 280 CPU s cold, was the 51st of 55): the run then ends with one worker
+# compiling alone. Heaviest first (longest-processing-time order), the many small files fill the
+# end. Measured costs: docs/benchmarks.md, "The test suite". Every other file keeps its place.
+HEAVY_FILES = (
+    "test_programme_fingerprint.py",
+    "test_checkpoint.py",
+    "test_trainer.py",
+    "test_rooms_training.py",
+    "test_sweep.py",
+    "test_learner_runs.py",
+    "test_sharding.py",
+    "test_reproduce.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Heavy files first (HEAVY_FILES), each file's tests in their own order."""
+    rank = {name: i for i, name in enumerate(HEAVY_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FILES)))
+
 
 def sigint_at_default() -> None:
     """`preexec_fn` of the subprocesses a test Ctrl-C's: SIGINT at its default, as a terminal starts
