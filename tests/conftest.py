@@ -17,6 +17,10 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.path.expandus
 # them cached a second run of a group of env and evaluation test files took 72 s instead of 144 s
 # (docs/benchmarks.md, "The test suite").
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+# XLA's default compile options on purpose: the tests run the program a user runs. Options that
+# compile faster were measured (docs/benchmarks.md, "the test suite cold"): LLVM at -O0
+# (jax_disable_most_optimizations) saves a third of the fingerprint file's CPU but changes the
+# programme's numbers; the options that keep the numbers save nothing.
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
