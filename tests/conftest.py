@@ -34,14 +34,14 @@ from fedjax_nav.env import NavEnv, lidar, make_params, nearest_distance  # noqa:
 # The costliest test files, costliest first, for the order in which the two xdist workers take files
 # (pyproject's addopts: `--dist loadfile --no-loadscope-reorder`). xdist's default order is by the
 # number of tests in a file, which queues these few-test, compile-heavy files last (the fingerprint
-# file, 3 tests and about 280 CPU s cold, was the 51st of 55): the run then ends with one worker
+# file, 3 tests and 283 CPU s cold, was the 51st of 55): the run then ends with one worker
 # compiling alone. Heaviest first (longest-processing-time order), the many small files fill the
 # end. Measured costs: docs/benchmarks.md, "The test suite". Every other file keeps its place.
 HEAVY_FILES = (
-    "test_programme_fingerprint.py",
-    "test_checkpoint.py",
     "test_trainer.py",
     "test_rooms_training.py",
+    "test_programme_fingerprint.py",
+    "test_checkpoint.py",
     "test_sweep.py",
     "test_learner_runs.py",
     "test_sharding.py",
