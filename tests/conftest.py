@@ -17,6 +17,10 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(os.path.expandus
 # them cached a second run of a group of env and evaluation test files took 72 s instead of 144 s
 # (docs/benchmarks.md, "The test suite").
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+# XLA's default compile options on purpose: the tests run the program a user runs. Options that
+# compile faster were measured (docs/benchmarks.md, "the test suite cold"): LLVM at -O0
+# (jax_disable_most_optimizations) saves a third of the fingerprint file's CPU but changes the
+# programme's numbers; the options that keep the numbers save nothing.
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -26,6 +30,29 @@ import yaml  # noqa: E402
 
 from fedjax_nav import worlds  # noqa: E402
 from fedjax_nav.env import NavEnv, lidar, make_params, nearest_distance  # noqa: E402
+
+# The costliest test files, costliest first, for the order in which the two xdist workers take files
+# (pyproject's addopts: `--dist loadfile --no-loadscope-reorder`). xdist's default order is by the
+# number of tests in a file, which queues these few-test, compile-heavy files last (the fingerprint
+# file, 3 tests and 283 CPU s cold, was the 51st of 55): the run then ends with one worker
+# compiling alone. Heaviest first (longest-processing-time order), the many small files fill the
+# end. Measured costs: docs/benchmarks.md, "The test suite". Every other file keeps its place.
+HEAVY_FILES = (
+    "test_trainer.py",
+    "test_rooms_training.py",
+    "test_programme_fingerprint.py",
+    "test_checkpoint.py",
+    "test_sweep.py",
+    "test_learner_runs.py",
+    "test_sharding.py",
+    "test_reproduce.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Heavy files first (HEAVY_FILES), each file's tests in their own order."""
+    rank = {name: i for i, name in enumerate(HEAVY_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FILES)))
 
 
 def sigint_at_default() -> None:
