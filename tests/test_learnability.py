@@ -83,7 +83,7 @@ def test_score_is_the_goal_share_of_the_episode_and_skips_fixed_rows():
     assert tr.learnability and tr.banked.tolist() == [True, True, False, False]
     bank = tr.init_bank(jnp.uint32(7))
     bank = bank.replace(slot=jnp.array([0, 3, 1, 2], jnp.int32))
-    hp = {"env.room_ema": jnp.float32(0.5)}
+    hp = hparams_from_config(cfg) | {"env.room_ema": jnp.float32(0.5)}
     new = tr.score(bank, hp, jnp.array([3, 0, 2, 1]), jnp.array([4, 5, 2, 1]))
     want = np.full((4, B), 0.5, np.float32)
     want[0, 0] = 0.5 * 0.5 + 0.5 * 0.75  # 3 goals of 4 attempts
@@ -132,8 +132,7 @@ def learn_run():
     for ep in range(3):
         st, m = chunk(st, hp, jnp.int32(ep))
         ms.append(jax.device_get(m))
-    hp2 = {
-        **hp,
+    hp2 = hp | {
         "env.room_fresh": jnp.float32(1.0),
         "env.room_ema": jnp.float32(0.9),
         "env.room_floor": jnp.float32(0.2),
@@ -184,19 +183,31 @@ def _bytes(x) -> bytes:
     return np.ascontiguousarray(np.asarray(x)).tobytes()
 
 
-# sha256 of the metrics and the final state of the uniform run below, recorded with the trainer
-# as it was before the learnability curriculum (same jax / XLA versions; skipped on others)
-UNIFORM_DIGEST = "65ed6d9a9ed998c756a0ee54efcb9ee37df58cc22f2882be6745eae58bf483ee"
-UNIFORM_VERSIONS = {"jax": "0.10.2", "jaxlib": "0.10.2", "flax": "0.12.8", "machine": "x86_64"}
+# sha256 of the metrics and the final state of the uniform run below, one record per (jax versions,
+# CPU kind) as in tests/test_programme_fingerprint.py: this machine's from the code before the typed
+# HParams and the learner table (f36fbce), itself equal to the program before the learnability
+# curriculum; skipped, saying so, on a machine with no record
+UNIFORM = {
+    "records": [
+        {
+            "versions": {
+                "cpu": "AuthenticAMD family 23 model 1 flags 4306b6e1dba3",
+                "flax": "0.12.8",
+                "jax": "0.10.2",
+                "jaxlib": "0.10.2",
+                "machine": "x86_64",
+            },
+            "recorded_from": "f36fbce",
+            "cases": {"uniform": "8ca56ee7e900d3325b7bff82c3a2e1eb0ae14429dc67fa3c27696ed976f95d51"},
+        }
+    ]
+}
 
 
 def test_uniform_sampling_is_bitwise_todays_program():
     """The default (env.room_sampling = uniform) procedural run: no bank in the state, and its
     metrics and state bitwise those of the program before the curriculum existed."""
-    import platform
-
-    import flax
-    import jaxlib
+    from test_programme_fingerprint import skip_unless_recorded
 
     cfg = load_config(None, TINY + PROC)
     assert cfg.env.room_sampling == "uniform" and cfg == load_config(None, TINY + PROC + ["env.room_sampling=uniform"])
@@ -204,9 +215,7 @@ def test_uniform_sampling_is_bitwise_todays_program():
     assert not tr.rooms.learnability
     st = tr.init_seeds(jnp.arange(1), hp)
     assert st.bank is None
-    versions = {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "flax": flax.__version__}
-    if {**versions, "machine": platform.machine()} != UNIFORM_VERSIONS:
-        pytest.skip(f"digest recorded with {UNIFORM_VERSIONS}")
+    digest = skip_unless_recorded(UNIFORM, "the uniform run's digest")["cases"]["uniform"]
     chunk = tr.compiled_chunk()
     h = hashlib.sha256()
     for ep in range(2):
@@ -216,7 +225,7 @@ def test_uniform_sampling_is_bitwise_todays_program():
             h.update(k.encode() + _bytes(m[k]))
     for leaf in jax.tree.leaves(st):
         h.update(_bytes(leaf))
-    assert h.hexdigest() == UNIFORM_DIGEST
+    assert h.hexdigest() == digest
 
 
 @pytest.mark.parametrize(

@@ -253,7 +253,7 @@ def np_nstep(seq, env, t, n, gamma):
 def _filled(nets, seq):
     """The learner's storage after the sequence, written by its own `store` (rows = ENVS)."""
     reward, term, trunc, obs, next_obs = seq
-    hp = {"ddpg.buffer_size": jnp.int32(CAP)}
+    hp = HParams() | {"ddpg.buffer_size": jnp.int32(CAP)}
     buf = learners.TD3.storage(nets, OBS, ENVS)
     store = jax.jit(lambda b, r, g: learners.TD3.store(nets, b, r, g, ENVS, hp))
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
