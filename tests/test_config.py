@@ -130,7 +130,7 @@ def test_sizes_set_on_the_command_line_that_conflict_are_refused_naming_the_flag
 
 def test_the_defaults_are_the_thesis_flddpg_preset():
     # `fedjax-nav train` without --config names this preset as what the defaults train
-    from fedjax_nav.cli.commands import DEFAULT_PRESET
+    from fedjax_nav.cli.train import DEFAULT_PRESET
     from fedjax_nav.config import Config, diff
 
     assert diff(Config(), load_config(DEFAULT_PRESET)) == []

@@ -16,9 +16,9 @@ from fedjax_nav.cli.commands import (
     _render,
     _reproduce,
     _sweep,
-    _train,
     _worlds,
 )
+from fedjax_nav.cli.train import _train
 
 DESCRIPTION = "`fedjax-nav`: the command line. Each command parses its flags and dispatches to a module."
 
