@@ -3,7 +3,7 @@
 import pytest
 
 from fedjax_nav.agents.ddpg import update_flops
-from fedjax_nav.experiments import bench, bench_learners
+from fedjax_nav.experiments import bench, bench_learners, bench_sweep
 
 
 def test_env_bench_reports_throughput():
@@ -22,7 +22,7 @@ def test_update_flops_matches_hand_count():
 
 
 def test_sweep_bench_times_one_by_one_and_batched():
-    rows = bench.bench_sweep(
+    rows = bench_sweep.bench_sweep(
         points=2,
         episodes=1,
         overrides=(

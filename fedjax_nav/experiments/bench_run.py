@@ -9,8 +9,9 @@ import time
 
 import jax
 
-from fedjax_nav.experiments.bench import bench_env, bench_sweep, bench_train, format_rows, machine, matmul_ceiling
+from fedjax_nav.experiments.bench import bench_env, bench_train, format_rows, machine, matmul_ceiling
 from fedjax_nav.experiments.bench_learners import bench_learners
+from fedjax_nav.experiments.bench_sweep import bench_sweep
 
 
 def main(args) -> int:
