@@ -76,9 +76,13 @@ def imports(path: Path) -> set[str]:
             if base == "fedjax_nav":  # `from fedjax_nav import worlds`; `__version__` is the package's own
                 out |= {f"fedjax_nav.{a.name}" if _is_module(f"fedjax_nav.{a.name}") else base for a in node.names}
             elif base.startswith("fedjax_nav"):
-                out.add(base)
-                # `from fedjax_nav.evaluation import report`: the submodule too, where it is one
-                out |= {f"{base}.{a.name}" for a in node.names if _is_module(f"{base}.{a.name}")}
+                # `from fedjax_nav.evaluation import report` imports the submodule only (Python runs
+                # the package's `__init__` first, but a module that imports only submodules needs
+                # nothing from it); a name the `__init__` defines or re-exports imports the `__init__`
+                subs = {f"{base}.{a.name}" for a in node.names if _is_module(f"{base}.{a.name}")}
+                out |= subs
+                if len(subs) < len(node.names):
+                    out.add(base)
     return out
 
 
@@ -219,28 +223,23 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
-# Packages whose `__init__` still re-exports modules that import it back (to be broken as the
-# config's was: its schema in a module of its own, config/schema.py). No package may join this list.
-INIT_CYCLES = {"env", "evaluation", "federated", "worlds"}
-
-
 def test_no_import_cycle_inside_a_package():
     """No cycle of imports of any length between the modules of one package, its `__init__`
-    included (a package's `__init__` that re-exports its modules must not be imported by them),
-    but for the packages of INIT_CYCLES, where only cycles without an `__init__` are refused."""
+    included: a package's `__init__` that re-exports its modules must not be imported by them
+    (they import the module that defines a name: `fedjax_nav.worlds.world.World`)."""
     names = {module_name(p): p for p in sources()}
-
-    def counted(m: str) -> bool:
-        return names[m].name != "__init__.py" or unit(m) not in INIT_CYCLES
-
-    graph = {
-        m: {i for i in imports(p) if i in names and i != m and unit(i) == unit(m) and counted(i)}
-        for m, p in names.items()
-        if counted(m)
-    }
+    graph = {m: {i for i in imports(p) if i in names and i != m and unit(i) == unit(m)} for m, p in names.items()}
     assert not _cycles(graph), _cycles(graph)
 
 
 def test_the_cycle_check_finds_a_cycle():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_imports_tell_a_submodule_from_a_name_of_the_init():
+    """`from fedjax_nav.worlds import procedural` imports the submodule only; `from fedjax_nav.worlds
+    import World` imports the package's `__init__` (which re-exports it): the cycle check sees that."""
+    assert imports(PKG / "worlds" / "procedural.py") >= {"fedjax_nav.worlds.cave", "fedjax_nav.worlds.world"}
+    assert "fedjax_nav.worlds" not in imports(PKG / "worlds" / "procedural.py")
+    assert "fedjax_nav.worlds" in imports(PKG / "env" / "nav.py")  # `from fedjax_nav.worlds import World`

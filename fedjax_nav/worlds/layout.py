@@ -17,10 +17,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from fedjax_nav.worlds import World
 from fedjax_nav.worlds.rooms import _START_TRIES, RoomSpec
 from fedjax_nav.worlds.sampling import Uniforms, first_true, take_rows
 from fedjax_nav.worlds.shapes import padded_shape
+from fedjax_nav.worlds.world import World
 
 
 class Endpoints(NamedTuple):

@@ -68,11 +68,12 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from fedjax_nav.worlds import World, cave, corridors, forest, maze, office, warehouse
+from fedjax_nav.worlds import cave, corridors, forest, maze, office, warehouse
 from fedjax_nav.worlds.layout import pad_world
 from fedjax_nav.worlds.rooms import _START_TRIES, RoomSpec, check_spec
 from fedjax_nav.worlds.sampling import Uniforms, box_corners, first_true, gumbel_argmax, pt_seg, seg_box, take_rows
 from fedjax_nav.worlds.shapes import slot_counts
+from fedjax_nav.worlds.world import World
 
 # ----------------------------------------------------------------------------- how many draws a spec uses
 

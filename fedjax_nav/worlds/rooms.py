@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from fedjax_nav.messages import shorten, show
-from fedjax_nav.worlds import CLEARANCE, WorldError
 from fedjax_nav.worlds.shapes import needed_shape
+from fedjax_nav.worlds.world import CLEARANCE, WorldError
 
 # The first four families draw cylinders, boxes and walls around a reserved network
 # (`procedural`); the dense ones build a structure (forest, warehouse, maze, cave) in their own

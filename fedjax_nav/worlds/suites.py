@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fedjax_nav.worlds import World, WorldError, from_dict, wall_segments
 from fedjax_nav.worlds.procedural import generate_batch, jitted_generator
 from fedjax_nav.worlds.rooms import (
     BASE_FAMILIES,
@@ -29,6 +28,7 @@ from fedjax_nav.worlds.rooms import (
     make_spec,
     parse_overrides,
 )
+from fedjax_nav.worlds.world import World, WorldError, from_dict, wall_segments
 
 ROOM_ROOT = 0x5EED  # root of every room key
 TEST_SEED_BASE = 2**31  # room seeds >= this are reserved for the held-out test suites
