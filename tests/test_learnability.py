@@ -160,7 +160,7 @@ def test_a_tiny_learnability_run_scores_its_bank_in_one_compilation(learn_run):
         assert m["room_p"].shape == (1, 1, 2) and m["fresh_rooms"].shape == (1, 1, 2)
         assert set(np.unique(m["fresh_rooms"] * 2)) <= {0.0, 1.0, 2.0}
     np.testing.assert_allclose(r["ms"][-1]["room_p"][0, 0], p.reshape(2, 2 * B).mean(1), rtol=1e-6)
-    df = metrics_frame(r["ms"][-1], tr.cfg, tr)  # what metrics.csv holds: one row per seed, episode, robot
+    df = metrics_frame(r["ms"][-1], tr.cfg, tr.facts())  # what metrics.csv holds: one row per seed, episode, robot
     np.testing.assert_allclose(df["room_p"], r["ms"][-1]["room_p"].ravel())
     assert "fresh_rooms" in df and len(df) == 2
     # room_fresh = 1: every environment drew a fresh room, the fresh room of block 3 + B

@@ -175,7 +175,7 @@ def worker(folder: str) -> dict:  # pragma: no cover (runs in the subprocess)
         )
         if method == "gsddpg":  # a global model away from the clients' mean
             st = st.replace(agg_state=jax.tree.map(lambda x: x + 0.1, st.agg_state))
-        step = jax.vmap(lambda s, h, tr=tr: federation.federated_round(tr, s, h)[0], in_axes=(0, hp_axes(hp)))
+        step = jax.vmap(lambda s, h, tr=tr: federation.federated_round(tr.round, s, h)[0], in_axes=(0, hp_axes(hp)))
         taus = (0.0, 0.5, 1.0) if method != "gsddpg" else (0.5,)  # GS has no tau (beta steps the global model)
         for tau in taus:
             h = hp | {"fed.tau": jnp.float32(tau)}

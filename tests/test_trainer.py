@@ -270,7 +270,7 @@ def test_federated_step_mixes_nets_with_the_method_weights_and_keeps_the_rest_lo
     cfg = load_config(THESIS / f"{name}.yaml", TINY + ["fed.tau=0.5", "fed.beta=0.5"])
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
-    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
+    out = federation.federated_round(tr.round, st, hparams_from_config(cfg))[0]
     r = np.array(REWARD_SUM) / 20
     w = {
         "flddpg": np.full(ROBOTS, 0.2),
@@ -290,7 +290,7 @@ def test_federated_step_include_targets_averages_the_targets_too():
     cfg = load_config(THESIS / "flddpg.yaml", TINY + ["fed.tau=1.0", "fed.include_targets=true"])
     tr = Trainer(cfg)
     st = _fed_state(REWARD_SUM)
-    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
+    out = federation.federated_round(tr.round, st, hparams_from_config(cfg))[0]
     for name in ("actor", "critic", "actor_targ", "critic_targ"):
         for got, ref in zip(
             jax.tree.leaves(getattr(out.agents, name)), _np_mix(getattr(st.agents, name), np.full(ROBOTS, 0.2), 1.0)
@@ -309,7 +309,7 @@ def test_gs_federated_step_moves_the_global_model_and_every_client_to_it(include
     nets = {"actor": st.agents.actor, "critic": st.agents.critic}
     prev = agg.GlobalState(jax.tree.map(lambda x: x.mean(0) + 1.0, nets))  # a global model != the clients' mean
     st = st.replace(agg_state=prev)
-    out = federation.federated_round(tr, st, hparams_from_config(cfg))[0]
+    out = federation.federated_round(tr.round, st, hparams_from_config(cfg))[0]
     ref = [
         0.5 * np.asarray(p, np.float64) + 0.5 * np.asarray(c, np.float64).mean(0)
         for p, c in zip(jax.tree.leaves(prev), jax.tree.leaves(nets))

@@ -4,33 +4,47 @@ stop a run."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import jax
 import numpy as np
 import pandas as pd
 
 from fedjax_nav.config import Config
 from fedjax_nav.federated.comm import bytes_per_round, communication
+from fedjax_nav.methods import Method
 from fedjax_nav.rundir import goal_share, success_last_per_seed
-from fedjax_nav.training.trainer import Trainer
 
 
-def fed_bytes_per_round(trainer: Trainer) -> int:
+@dataclass(frozen=True, eq=False)
+class Facts:
+    """What the host's tables need of a run, fixed when it is built (`Trainer.facts()`)."""
+
+    method: Method  # its methods row: whether it federates, whether rewards travel (communication)
+    n_real: int  # clients without the ones padded in for a mesh
+    n_nets: int  # networks (1 for a shared-network method)
+    num_params: int  # parameters one client sends per round (the learner's shared fields)
+    loss_names: tuple[str, ...]  # the learner's per-network metrics (critic_loss, ...)
+    byzantine: np.ndarray  # bool[clients]: the Byzantine clients (fed.byzantine)
+
+
+def fed_bytes_per_round(facts: Facts) -> int:
     """Bytes on the wire of one federated round (every client's parameters up, the aggregate
     down; rewards too for PW/RW), 0 for methods without a federated step."""
-    if trainer.method.aggregator == "none":
+    if facts.method.aggregator == "none":
         return 0
-    return bytes_per_round(trainer.num_params(), trainer.n_real, trainer.method.sends_rewards)
+    return bytes_per_round(facts.num_params, facts.n_real, facts.method.sends_rewards)
 
 
-def fed_bytes_per_client(trainer: Trainer) -> int:
+def fed_bytes_per_client(facts: Facts) -> int:
     """Bytes one participating client exchanges in a round (its parameters and reward up, the
     aggregate down), 0 for methods without a federated step."""
-    if trainer.method.aggregator == "none":
+    if facts.method.aggregator == "none":
         return 0
-    return bytes_per_round(trainer.num_params(), 1, trainer.method.sends_rewards)
+    return bytes_per_round(facts.num_params, 1, facts.method.sends_rewards)
 
 
-def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
+def metrics_frame(metrics: dict, cfg: Config, facts: Facts) -> pd.DataFrame:
     """Flatten the metrics of episodes 0.. (leaves [seeds, episodes, ...]) into rows
     episode x seed x robot. `fed_bytes`: bytes of the federated steps in that episode (what was
     actually sent, up and down: fed_clients x `fed_bytes_per_client`; every client of every
@@ -41,12 +55,12 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
     if "fed_clients" not in m:  # metrics of a checkpoint written before partial participation
         m = {
             **m,
-            "fed_clients": np.asarray(m["fed_events"]) * trainer.n_real * (trainer.method.aggregator != "none"),
+            "fed_clients": np.asarray(m["fed_events"]) * facts.n_real * (facts.method.aggregator != "none"),
             "fed_skipped": np.zeros_like(m["fed_events"]),
         }
     S, E, N = m["reward"].shape
     ep, seed, robot = np.meshgrid(np.arange(E), np.arange(S) + cfg.run.seed, np.arange(N), indexing="ij")
-    net = np.zeros(N, int) if trainer.n_nets == 1 else np.arange(N)
+    net = np.zeros(N, int) if facts.n_nets == 1 else np.arange(N)
     per_net = lambda x: np.transpose(x, (1, 0, 2))[:, :, net]  # noqa: E731  [E, S, N]
     per_seed = lambda x: np.broadcast_to(np.transpose(x, (1, 0))[:, :, None], (E, S, N))  # noqa: E731
     tr = lambda x: np.transpose(x, (1, 0, 2))  # noqa: E731
@@ -61,12 +75,12 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
             "reached_goal": (tr(m["goals"]) > 0).ravel().astype(int),
             "collisions": tr(m["collisions"]).ravel(),
             # the learner's losses, per network (DDPG/TD3: critic_loss, actor_loss, q; docs/learners.md)
-            **{name: per_net(m[name]).ravel() for name in trainer.learner.metrics},
+            **{name: per_net(m[name]).ravel() for name in facts.loss_names},
             "fed_events": per_seed(m["fed_events"]).ravel(),
-            "fed_bytes": per_seed(m["fed_clients"]).ravel() * fed_bytes_per_client(trainer),
+            "fed_bytes": per_seed(m["fed_clients"]).ravel() * fed_bytes_per_client(facts),
             "fed_clients": per_seed(m["fed_clients"]).ravel(),
             "fed_skipped": per_seed(m["fed_skipped"]).ravel(),
-            "byzantine": trainer.byzantine[robot.ravel()].astype(int),
+            "byzantine": facts.byzantine[robot.ravel()].astype(int),
             "epsilon": per_seed(m["epsilon"]).ravel(),
         }
     )
@@ -78,7 +92,7 @@ def metrics_frame(metrics: dict, cfg: Config, trainer: Trainer) -> pd.DataFrame:
     return df
 
 
-def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -> dict:
+def summarize(df: pd.DataFrame, cfg: Config, facts: Facts, last: int = 25) -> dict:
     """Success proportion and reward over the last `last` episodes: mean and std over seeds."""
     per_ep = df.groupby(["seed", "episode"]).agg(success=("reached_goal", "mean"), reward=("reward", "mean"))
     E = int(df["episode"].max()) + 1
@@ -90,7 +104,7 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
     skipped = per_seed_first["fed_skipped"].sum() if "fed_skipped" in df else None
     fed_events = df.groupby(["seed", "episode"])["fed_events"].first().groupby("seed").sum()
     comm = communication(
-        trainer.method,
+        facts.method,
         cfg.run.episodes,
         cfg.env.episode_length,
         cfg.ddpg.train_every,
@@ -98,8 +112,8 @@ def summarize(df: pd.DataFrame, cfg: Config, trainer: Trainer, last: int = 25) -
         cfg.fed.period_unit,
         cfg.fed.period,
     )
-    n_params = trainer.num_params()
-    bpr = fed_bytes_per_round(trainer)
+    n_params = facts.num_params
+    bpr = fed_bytes_per_round(facts)
     return {
         "method": cfg.method,
         "episodes_done": E,
@@ -139,7 +153,7 @@ class Interrupted(RuntimeError):
     """Ctrl-C: a checkpoint was saved; the message says how to resume."""
 
 
-def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> None:
+def check_finite(m: dict, first_episode: int, cfg: Config, facts: Facts) -> None:
     """Raise DivergenceError at the first episode with a non-finite loss, Q estimate, reward or
     parameter, or with a mean |Q| estimate above run.max_abs_q or a critic loss above
     run.max_critic_loss (host-side, after each chunk; leaves [seeds, episodes, nets or robots])."""
@@ -147,7 +161,7 @@ def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> 
     said = {"critic_loss": "the critic loss", "actor_loss": "the actor loss", "q": "the Q estimate"}
     checks = [
         (f"NaN/Inf in {said.get(name, name)}", ~np.isfinite(np.asarray(m[name])), None, True)
-        for name in trainer.learner.metrics
+        for name in facts.loss_names
     ]
     checks += [
         ("NaN/Inf in the parameters", ~np.asarray(m["params_finite"], bool), None, True),
@@ -185,7 +199,7 @@ def check_finite(m: dict, first_episode: int, cfg: Config, trainer: Trainer) -> 
     e, s, k, name, per_net = min(found, key=lambda t: t[0])
     who = (
         f"network {k} (robot {k})"
-        if per_net and trainer.n_nets > 1
+        if per_net and facts.n_nets > 1
         else ("the shared network" if per_net else f"robot {k}")
     )
     raise DivergenceError(f"{name} at episode {first_episode + e}, seed {r.seed + s}, {who}", first_episode + e)

@@ -26,6 +26,7 @@ from fedjax_nav.training import preflight
 from fedjax_nav.training.hparams import HParams, hparams_from_config
 from fedjax_nav.training.metrics import (
     DivergenceError,
+    Facts,
     Interrupted,
     check_finite,
     metrics_frame,
@@ -97,6 +98,7 @@ class _Run:
     writer: bool
     ckpt: Any
     resume: preflight.Resume | None  # None: a new run
+    facts: Facts  # what the metrics tables need of the run (`Trainer.facts()`)
 
     def say(self, line: str) -> None:
         """A one-line notice on stderr (by the writer): what a resume did instead of the obvious."""
@@ -105,7 +107,7 @@ class _Run:
 
     def write_metrics(self, metrics: dict):
         """The metrics table of episodes 0.. (leaves [seeds, episodes, ...]); metrics.csv by the writer."""
-        df = metrics_frame(metrics, self.cfg, self.trainer)
+        df = metrics_frame(metrics, self.cfg, self.facts)
         if self.writer:
             rundir.write_metrics(self.out, df)
         return df
@@ -150,7 +152,7 @@ def _prepare(cfg, out, trainer, resume, overwrite, allow_config_change, mesh, wr
         rundir.write_config(out, cfg)
     ckpt = Checkpointer(out, keep=cfg.run.keep_checkpoints, process=parallel.checkpoint_process(mesh))
     plan = preflight.plan_resume(ckpt, cfg, out, allow_config_change, from_checkpoint) if resume else None
-    return _Run(cfg, out, trainer, mesh, writer, ckpt, plan)
+    return _Run(cfg, out, trainer, mesh, writer, ckpt, plan, trainer.facts())
 
 
 def _restore(run: _Run, states):
@@ -255,7 +257,7 @@ def _loop(run: _Run, chunk, states, hp: HParams, metrics, start: int, all_df, pr
             if t_compile is None:
                 t_compile = time.time() - tc
             try:
-                check_finite(m, first, cfg, run.trainer)
+                check_finite(m, first, cfg, run.facts)
             except DivergenceError as err:
                 raise _salvage(run, err, first, metrics, m) from None
             metrics = _append(metrics, m)
@@ -317,7 +319,7 @@ def _finish(run: _Run, states, all_df, timings: dict) -> dict:
     writer, summary.json and params.npz (without the padding clients)."""
     from fedjax_nav.training import parallel
 
-    summary = summarize(all_df, run.cfg, run.trainer)
+    summary = summarize(all_df, run.cfg, run.facts)
     summary.update({**timings, "jax_backend": jax.default_backend()})
     mesh = run.mesh
     if mesh is not None:

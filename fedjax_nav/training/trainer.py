@@ -34,53 +34,60 @@ when it needs a new per-step value).
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 
 from fedjax_nav import methods, worlds
 from fedjax_nav.agents import learners
 from fedjax_nav.agents.distributions import ACTION_HIGH, ACTION_LOW
 from fedjax_nav.agents.learners import Record
 from fedjax_nav.config import Config, envs, values
-from fedjax_nav.env.nav import EnvParams, EnvState
+from fedjax_nav.env.nav import EnvParams
 from fedjax_nav.training import federation
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config
+from fedjax_nav.training.metrics import Facts
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
 from fedjax_nav.training.rooms import density as room_density  # the curriculum's, not an env field
+from fedjax_nav.training.state import TrainState
 from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite, loss_metrics
 
 
-@struct.dataclass
-class TrainState:
-    """One seed. Leading axes: agents [n_nets], buffers [n_bufs], env_state/obs/memory/first
-    [environments] (robots x env.envs_per_robot, robot-major), reward_sum [robots]."""
-
-    agents: Any  # the learner's state (ddpg.AgentState, td3.State, sac.State, ppo.State)
-    buffers: Any  # the learner's storage: replay rows (buffer.Transition) or a rollout (ppo.Rollout)
-    env_state: EnvState
-    obs: jax.Array  # f32[environments, obs]
-    explore: Any  # the learner's exploration carry (learner.explore_init; DDPG: its epsilon f32[], else ())
-    agg_state: Any  # the aggregator's state (a NamedTuple of fedjax_nav.federated.aggregators; no client axis)
-    reward_sum: jax.Array  # f32[robots] since the last federated step
-    reward_steps: jax.Array  # f32[]
-    key: jax.Array
-    # procedural rooms only (env.rooms = procedural; training/rooms.py), None otherwise:
-    world: worlds.World | None = None  # the robots' current rooms [robots]
-    room_stream: jax.Array | None = None  # u32[] this seed's offset in the training room stream
-    bank: Any = None  # env.room_sampling = learnability: rooms.RoomBank (each environment's rooms and scores)
-    # learners with a memory (PPO: its GRU states, empty without a GRU), None otherwise:
-    memory: Any = None  # the learner's per-environment carry [environments, ...]
-    first: jax.Array | None = None  # bool[environments]: obs starts an episode
-
-
+@dataclass(frozen=True, eq=False, init=False)
 class Trainer:
-    """Static structure of a run (shapes, method flags, networks, worlds) built from a Config."""
+    """A run's program: the frozen description of its structure, built once from the config
+    (padded with the mesh's masked clients), and the pure functions over it that make the compiled
+    program (`init`, `episode`, `chunk`; `compiled_chunk` jits a chunk). Nothing here changes after
+    `__init__`; the federated round and the host's tables take only what they need of it
+    (`round`: a `federation.Round`; `facts()`: a `metrics.Facts`)."""
+
+    cfg: Config  # the padded config: env.worlds holds the padding clients' rooms too
+    n_real: int  # clients of the user's config; the rest (`pad`) are masked copies of the last robot
+    pad: int
+    method: methods.Method
+    learner: learners.Learner
+    env: Any  # the NavEnv of the ideal robot (noise off: the thesis's program)
+    rooms: TrainRooms  # fixed playgrounds, or procedural rooms drawn in the program
+    world: worlds.World  # the fixed rooms, one per environment
+    nets: Any  # the learner's static networks and sizes (`Learner.make_nets`)
+    probe: Probe | None  # run.eval_every: the held-out probe
+    num_robots: int  # clients, padding included
+    envs_per_robot: int
+    num_envs: int
+    n_nets: int  # 1 for a shared-network method
+    n_bufs: int  # 1 for a shared-buffer method
+    writes: int  # rows each buffer receives per step
+    obs_size: int
+    T: int  # steps per episode
+    real: np.ndarray  # bool[clients]: not padding
+    byzantine: np.ndarray  # bool[clients]: the last fed.byzantine real clients
+    round: federation.Round  # what a federated round needs
 
     def __init__(self, cfg: Config, pad: int = 0):
         """`pad` > 0 appends that many permanently masked clients (copies of the last robot's
@@ -88,36 +95,50 @@ class Trainer:
         federated round, their metrics are dropped, and the real robots' numbers equal the
         unpadded run's to float32 round-off (their PRNG keys are the same: split(k, n + pad)
         begins with split(k, n))."""
-        self.cfg = cfg
-        self.method = methods.get(cfg.method)
+        method = methods.get(cfg.method)
         # one shared network or buffer cannot be split over devices: no padding (check_mesh says so)
-        shared = self.method.shared_network or self.method.shared_buffer
-        self.n_real, self.pad = cfg.num_robots, 0 if shared else int(pad)
-        if self.pad:
-            import dataclasses
+        n_real, pad = cfg.num_robots, 0 if method.shared_network or method.shared_buffer else int(pad)
+        if pad:
+            env = dataclasses.replace(cfg.env, worlds=cfg.env.worlds + (cfg.env.worlds[-1],) * pad)
+            cfg = dataclasses.replace(cfg, env=env)
+        learner = learners.get(cfg.learner)
+        nets = learner.make_nets(values(cfg))
+        n = cfg.num_robots
+        env = envs.make_env(cfg, "learn")
+        rooms = TrainRooms(cfg)
+        n_envs = n * cfg.env.envs_per_robot
+        real = np.arange(n) < n_real
+        byzantine = real & (np.arange(n) >= n_real - cfg.fed.byzantine)
+        n_bufs = 1 if method.shared_buffer else n
+        fields = dict(
+            cfg=cfg,
+            n_real=n_real,
+            pad=pad,
+            method=method,
+            learner=learner,
+            env=env,
+            rooms=rooms,
+            world=rooms.world,
+            nets=nets,
+            probe=Probe(cfg, learner, nets, cfg.run.eval_suite) if cfg.run.eval_every else None,
+            num_robots=n,
+            envs_per_robot=cfg.env.envs_per_robot,
+            num_envs=n_envs,
+            n_nets=1 if method.shared_network else n,
+            n_bufs=n_bufs,
+            writes=n_envs // n_bufs,
+            obs_size=env.obs_size,
+            T=cfg.env.episode_length,
+            real=real,
+            byzantine=byzantine,
+            round=federation.describe(cfg.fed, method, learner, real, byzantine),
+        )
+        for name, value in fields.items():
+            object.__setattr__(self, name, value)
 
-            cfg = dataclasses.replace(
-                cfg, env=dataclasses.replace(cfg.env, worlds=cfg.env.worlds + (cfg.env.worlds[-1],) * self.pad)
-            )
-        e = cfg.env
-        self.env = envs.make_env(cfg, "learn")  # the ideal robot: noise off, the thesis's program
-        self.rooms = TrainRooms(cfg)  # fixed playgrounds, or procedural rooms drawn in the program
-        self.world = self.rooms.world  # one room per environment
-        f = cfg.fed
-        self.learner = learners.get(cfg.learner)
-        self.num_robots = cfg.num_robots
-        self.envs_per_robot = e.envs_per_robot
-        self.num_envs = self.num_robots * self.envs_per_robot
-        self.n_nets = 1 if self.method.shared_network else self.num_robots
-        self.n_bufs = 1 if self.method.shared_buffer else self.num_robots
-        self.writes = self.num_envs // self.n_bufs  # rows each buffer receives per step
-        self.nets = self.learner.make_nets(values(cfg))  # static: modules, batch and loop sizes
-        self.probe = Probe(cfg, self.learner, self.nets, cfg.run.eval_suite) if cfg.run.eval_every else None
-        self.obs_size = self.env.obs_size
-        self.T = e.episode_length
-        # static client roles: the last fed.byzantine real robots are Byzantine; padding is never real
-        self.real = np.arange(self.num_robots) < self.n_real
-        self.byzantine = self.real & (np.arange(self.num_robots) >= self.n_real - f.byzantine)
+    def facts(self) -> Facts:
+        """What the host's tables (training.metrics) need of this run."""
+        return Facts(self.method, self.n_real, self.n_nets, self.num_params(), self.learner.metrics, self.byzantine)
 
     def env_params(self, hp: HParams, world: worlds.World | None = None) -> EnvParams:
         """The environments' EnvParams [environments] in `world` (default: the run's fixed rooms)."""
@@ -125,16 +146,15 @@ class Trainer:
 
     def aggregator(self, hp: HParams):
         """The run's aggregator with its traced hyperparameters (`training.federation.aggregator`)."""
-        return federation.aggregator(self, hp)
+        return federation.aggregator(self.round, hp)
 
     def shared(self, agents) -> dict:
-        """What a client sends in a federated round: the learner's SHARED fields (and its TARGETS
-        with fed.include_targets)."""
-        return self.learner.shared(agents, self.cfg.fed.include_targets)
+        """What a client sends in a federated round (`federation.Round.shared`)."""
+        return self.round.shared(agents)
 
     def take_shared(self, agents, new: dict):
         """The agents with what a federated round sent back (`shared`'s keys) put in place."""
-        return self.learner.take_shared(agents, new)
+        return self.round.take_shared(agents, new)
 
     def policy(self, agents):
         """The greedy policies' parameters (leaves [n_nets, ...]): what the probe drives."""
@@ -230,7 +250,7 @@ class Trainer:
 
     def federated_round(self, state: TrainState, hp: HParams) -> tuple[TrainState, dict]:
         """One federated round: the state and its stats (`training.federation.federated_round`)."""
-        return federation.federated_round(self, state, hp)
+        return federation.federated_round(self.round, state, hp)
 
     def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
         """One env step of every environment, with the periodic updates. g: global step (unbatched).

@@ -15,7 +15,7 @@ import numpy as np
 
 from fedjax_nav import rundir
 from fedjax_nav.training.hparams import HParams
-from fedjax_nav.training.metrics import metrics_frame, summarize
+from fedjax_nav.training.metrics import Facts, metrics_frame, summarize
 from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget, plan
 from fedjax_nav.training.sweep.spec import Job, fold_prefixes
 from fedjax_nav.training.tblog import TensorBoardLog
@@ -67,13 +67,14 @@ def _slice(tree, lo: int, n: int):
     return jax.tree.map(lambda x: x[lo : lo + n], tree)
 
 
-def write_point(points_dir: Path, job: Job, trainer: Trainer, states, metrics: dict, extra: dict) -> dict:
-    """Save one job as a run directory (what `fedjax-nav train` writes, checkpoints aside)."""
+def write_point(points_dir: Path, job: Job, facts: Facts, params: dict, metrics: dict, extra: dict) -> dict:
+    """Save one job as a run directory (what `fedjax-nav train` writes, checkpoints aside): `params`
+    its seeds' shared fields (`Learner.shared`), `facts` its group's `metrics.Facts`."""
     d = points_dir / job.id
     d.mkdir(parents=True, exist_ok=True)
     cfg = job.cfg
-    df = metrics_frame(metrics, cfg, trainer)
-    summary = summarize(df, cfg, trainer)
+    df = metrics_frame(metrics, cfg, facts)
+    summary = summarize(df, cfg, facts)
     finite = np.asarray(metrics["params_finite"]).all(axis=(1, 2)) & np.isfinite(np.asarray(metrics["reward"])).all(
         axis=(1, 2)
     )
@@ -82,7 +83,7 @@ def write_point(points_dir: Path, job: Job, trainer: Trainer, states, metrics: d
     )
     rundir.write_config(d, cfg)
     rundir.write_metrics(d, df)
-    rundir.write_params(d, trainer.learner.shared(states.agents))
+    rundir.write_params(d, params)
     rundir.write_json(d / rundir.SUMMARY, summary)  # last: marks done
     return summary
 
@@ -97,6 +98,7 @@ def run_batch(
 
     trainer = group.trainer
     cfg = trainer.cfg
+    facts = trainer.facts()
     seeds, hp, spans = batch_rows(jobs, group.batch_rows, group.batched)
     bdir = batches_dir / batch_id(jobs, group.batch_rows)
     states = compiled.init(seeds, hp)
@@ -116,7 +118,7 @@ def run_batch(
             metrics = m if metrics is None else {k: np.concatenate([metrics[k], m[k]], axis=1) for k in m}
             for job, lo, n in spans:
                 if job.id in tb:  # live scalars of the chunk's episodes (metrics.csv is written at the end)
-                    df = metrics_frame({k: v[lo : lo + n] for k, v in m.items()}, job.cfg, trainer)
+                    df = metrics_frame({k: v[lo : lo + n] for k, v in m.items()}, job.cfg, facts)
                     tb[job.id].episodes(df.assign(episode=df["episode"] + first))
             done = first + K
             for job, lo, _ in spans:  # shorter budgets of the same run (spec.fold_prefixes)
@@ -124,7 +126,8 @@ def run_batch(
                     k = pre.cfg.run.seeds
                     extra = {"prefix_of": job.id, "wall_s": (time.time() - t0) * k / group.batch_rows}
                     rows = {key: v[lo : lo + k] for key, v in metrics.items()}
-                    write_point(points_dir, pre, trainer, _slice(states, lo, k), rows, extra)
+                    shared = trainer.learner.shared(_slice(states, lo, k).agents)
+                    write_point(points_dir, pre, facts, shared, rows, extra)
             bar.update(K)
             bar.set_postfix(
                 success=f"{(np.asarray(m['goals'][:, -1]) > 0).mean():.2f}",
@@ -145,9 +148,8 @@ def run_batch(
             "wall_s": wall * n / group.batch_rows,
             "resumed_from_episode": start,
         }
-        write_point(
-            points_dir, job, trainer, _slice(states, lo, n), {k: v[lo : lo + n] for k, v in metrics.items()}, extra
-        )
+        shared = trainer.learner.shared(_slice(states, lo, n).agents)
+        write_point(points_dir, job, facts, shared, {k: v[lo : lo + n] for k, v in metrics.items()}, extra)
     shutil.rmtree(bdir, ignore_errors=True)
     return wall
 
