@@ -294,12 +294,20 @@ def test_a_short_run_of_any_length_follows_with_its_chunk_and_resumes_bitwise(re
     assert_same_run(reference, out)
 
 
-def test_resuming_a_finished_run_rewrites_the_same_results(reference, env, tmp_path):
-    """A kill after the last checkpoint but before the result files: --resume finishes them."""
+@pytest.mark.parametrize("layout", ["saved", "old-ddpg-section"])
+def test_resuming_a_finished_run_rewrites_the_same_results(reference, env, tmp_path, layout):
+    """A kill after the last checkpoint but before the result files: --resume finishes them. Also
+    for a run directory written before the offpolicy section, whose config.yaml holds the off-policy
+    settings in `ddpg:` (docs/learners.md, "Configuration"): it resumes as the same run."""
     out = tmp_path / "run"
     shutil.copytree(reference, out)
     for f in ("metrics.csv", "summary.json", "params.npz"):
         (out / f).unlink()
+    if layout == "old-ddpg-section":
+        data = yaml.safe_load((out / "config.yaml").read_text())
+        data["ddpg"] = {**data.pop("offpolicy"), **data["ddpg"]}
+        (out / "config.yaml").write_text(yaml.safe_dump(data))
+        assert load_config(out / "config.yaml") == load_config(reference / "config.yaml")
     r = run_cli(env, "train", "--resume", out, "--quiet")
     assert r.returncode == 0, r.stderr[-3000:]
     assert_same_run(reference, out)
