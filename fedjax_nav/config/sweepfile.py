@@ -40,18 +40,19 @@ from pathlib import Path
 from typing import Any
 
 from fedjax_nav.config import (
+    LEGACY_ALIASES,
     TOP_LEVEL,
     Config,
     ConfigError,
     apply_overrides,
+    canonical,
     field_info,
     from_dict,
     get,
     read_yaml,
+    resolve_aliases,
     to_dict,
 )
-from fedjax_nav.config.schema import LEGACY_ALIASES, canonical
-from fedjax_nav.config.validate import resolve_aliases
 from fedjax_nav.messages import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.

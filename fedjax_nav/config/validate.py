@@ -104,8 +104,11 @@ def _build(cls, data: Any, src: str, prefix: str, where, written=None):
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: '{prefix}' must be a mapping, got {type(data).__name__}")
-    written = written or {}
     known = {f.name: f for f in fields(cls)}
+
+    def name(k: str) -> str:  # the field as the user wrote it
+        return (written or {}).get(f"{prefix}.{k}", f"{prefix}.{k}")
+
     for k in data:
         if k not in known:
             dotted = f"{prefix}.{k}"
@@ -114,12 +117,7 @@ def _build(cls, data: Any, src: str, prefix: str, where, written=None):
             raise ConfigError(
                 f"{where(dotted)}: unknown key {show(dotted)} (allowed in '{prefix}': {', '.join(known)}{also})"
             )
-    return cls(
-        **{
-            k: _coerce(v, known[k], f"{where(f'{prefix}.{k}')}: {written.get(f'{prefix}.{k}', f'{prefix}.{k}')}")
-            for k, v in data.items()
-        }
-    )
+    return cls(**{k: _coerce(v, known[k], f"{where(f'{prefix}.{k}')}: {name(k)}") for k, v in data.items()})
 
 
 def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, dict]:
@@ -132,11 +130,12 @@ def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, 
     where = where or (lambda dotted: src)
     if not isinstance(data, dict):
         return data, {}
-    moved = {
-        old: new
-        for old, new in LEGACY_ALIASES.items()
-        if isinstance(data.get(old.split(".")[0]), dict) and old.split(".")[1] in data[old.split(".")[0]]
-    }
+
+    def given(dotted: str) -> bool:
+        section, key = dotted.split(".")
+        return isinstance(data.get(section), dict) and key in data[section]
+
+    moved = {old: new for old, new in LEGACY_ALIASES.items() if given(old)}
     if not moved:
         return data, {}
     out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
