@@ -38,11 +38,11 @@ class LearnerRow:
         return getattr(importlib.import_module(module), attribute)
 
 
-_OFF_POLICY = {
+_OFF_POLICY = {  # the replay learners' shared settings: the offpolicy section
     "on_policy": False,
-    "actor_section": "ddpg",
-    "update_every": "ddpg.train_every",
-    "steps_per_update": ("ddpg.gradient_steps",),
+    "actor_section": "offpolicy",
+    "update_every": "offpolicy.train_every",
+    "steps_per_update": ("offpolicy.gradient_steps",),
 }
 
 LEARNERS: dict[str, LearnerRow] = {
@@ -50,7 +50,7 @@ LEARNERS: dict[str, LearnerRow] = {
     for r in [
         LearnerRow(
             "ddpg",
-            ("ddpg",),
+            ("offpolicy", "ddpg"),
             implementation="fedjax_nav.agents.learners:DDPG",
             shared=("actor", "critic"),
             targets=("actor_targ", "critic_targ"),
@@ -60,7 +60,7 @@ LEARNERS: dict[str, LearnerRow] = {
         ),
         LearnerRow(
             "td3",
-            ("ddpg", "td3"),
+            ("offpolicy", "td3"),
             implementation="fedjax_nav.agents.learners:TD3",
             shared=("actor", "critics"),
             targets=("actor_targ", "critics_targ"),
@@ -69,7 +69,7 @@ LEARNERS: dict[str, LearnerRow] = {
         ),
         LearnerRow(
             "sac",
-            ("ddpg", "sac"),
+            ("offpolicy", "sac"),
             implementation="fedjax_nav.agents.learners:SAC",
             shared=("actor", "critics", "log_alpha"),
             targets=("critics_targ",),

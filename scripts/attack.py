@@ -59,8 +59,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("cli", "config", "kill", "concurrency", "disk")
-TINY = ["--episodes", "3", "--set", "env.episode_length=64", "--set", "ddpg.batch_size=16"]
-TINY += ["--set", "ddpg.buffer_size=256", "--set", "run.chunk_episodes=1"]
+TINY = ["--episodes", "3", "--set", "env.episode_length=64", "--set", "offpolicy.batch_size=16"]
+TINY += ["--set", "offpolicy.buffer_size=256", "--set", "run.chunk_episodes=1"]
 TINY_CKPT = TINY + ["--set", "run.checkpoint_every=1"]  # the kill trials' run: a checkpoint per episode
 LONG = "a" * 5000  # a file name no system can look up
 HUGE_INT = "99999999999999999999"  # 1e20: beyond int64
@@ -238,7 +238,9 @@ class Fixtures:
         self.garbage = self._write("garbage.yaml", b"\xff\xfe\x00\x81 not utf-8 \xc3\x28")
         self.file = self._write("a-file", "x\n")
         self.under_file = str(Path(self.file) / "sub")
-        self.tiny = self._write("tiny.yaml", "env: {episode_length: 64}\nddpg: {batch_size: 16, buffer_size: 256}\n")
+        self.tiny = self._write(
+            "tiny.yaml", "env: {episode_length: 64}\noffpolicy: {batch_size: 16, buffer_size: 256}\n"
+        )
         self.sweep = self.sweep_file("ok", {})
         self.run = d / "run"
 
@@ -528,13 +530,13 @@ def cli_cases(fx: Fixtures, parser) -> list[Case]:
 SET_VALUES = {
     "unknown-field": "ddpg.nope=1",
     "unknown-section": "nope.x=1",
-    "no-equals": "ddpg.gamma",
-    "no-value": "ddpg.gamma=",
-    "int-text": "ddpg.hidden=abc",
-    "int-fraction": "ddpg.hidden=1.5",
-    "float-list": "ddpg.gamma=[1, 2]",
-    "float-nan": "ddpg.gamma=.nan",
-    "float-date": "ddpg.gamma=2024-01-01",
+    "no-equals": "offpolicy.gamma",
+    "no-value": "offpolicy.gamma=",
+    "int-text": "offpolicy.hidden=abc",
+    "int-fraction": "offpolicy.hidden=1.5",
+    "float-list": "offpolicy.gamma=[1, 2]",
+    "float-nan": "offpolicy.gamma=.nan",
+    "float-date": "offpolicy.gamma=2024-01-01",
     "worlds-number": "env.worlds=5",
     "worlds-empty": "env.worlds=[]",
     "worlds-missing": "env.worlds=[/no/such/world.json]",
@@ -544,11 +546,11 @@ SET_VALUES = {
     "learner-unknown": "learner=nope",
     "alias-bomb": "env.worlds=" + ALIAS_BOMB.replace("\n", " ").replace("a: &a", "{a: &a").rstrip() + "}",
     "alias-recursive": "env.worlds=&a [*a]",
-    "python-tag": "ddpg.gamma=!!python/object/apply:os.system [echo hi]",
-    "yaml-error": "ddpg.gamma=[1, 2",
+    "python-tag": "offpolicy.gamma=!!python/object/apply:os.system [echo hi]",
+    "yaml-error": "offpolicy.gamma=[1, 2",
     "text-100k": "env.worlds=[" + "x" * 100_000 + "]",
-    "buffer-1e8": "ddpg.buffer_size=100000000",
-    "batch-1e6": "ddpg.batch_size=1000000",
+    "buffer-1e8": "offpolicy.buffer_size=100000000",
+    "batch-1e6": "offpolicy.batch_size=1000000",
     "room-spec-fixed": "env.room_spec=walls_max=2",
     "seed-int32": "run.seed=2147483647",
 }
@@ -563,7 +565,9 @@ CONFIG_TEXTS = {
     "section-not-mapping": "ddpg: 5\n",
     "python-tag": "ddpg: !!python/object/apply:os.system [echo hi]\n",
     "yaml-error": "ddpg: [1, 2\n",
-    "a-date": "ddpg:\n  gamma: 2024-01-01\n",
+    "a-date": "offpolicy:\n  gamma: 2024-01-01\n",
+    "old-name-a-date": "ddpg:\n  gamma: 2024-01-01\n",  # an offpolicy field by its old name
+    "old-and-new-name": "ddpg:\n  gamma: 0.9\noffpolicy:\n  gamma: 0.8\n",  # one field, two values
     "30mb-string": None,  # written below: 30 MB
 }
 # Sweep files (sweep FILE): each refused.

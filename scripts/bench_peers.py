@@ -174,7 +174,7 @@ def bench_jax_updates() -> float:
 
 
 def bench_fedjax_train(method: str, worlds_: list[str] | None) -> dict:
-    over = [f"method={method}", "ddpg.buffer_size=10000"]
+    over = [f"method={method}", "offpolicy.buffer_size=10000"]
     if worlds_:
         over.append("env.worlds=[" + ",".join(worlds_) + "]")
     return bench.bench_train(seeds=(1,), episodes=1, overrides=over)[0]

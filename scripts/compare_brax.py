@@ -170,7 +170,7 @@ def project_config(task: Task, learner: str, s, seeds: int, seed: int = 0) -> Co
             "init_log_std": math.log(brax_initial_std()),
         }
     elif learner == "sac":
-        data["ddpg"] = {
+        data["offpolicy"] = {
             "hidden": s.hidden,
             "depth": s.depth,
             "activation": "relu",
@@ -376,7 +376,7 @@ def settings_table(task: Task, learner: str, s) -> list[tuple[str, str, str, str
             ),
         ]
     else:
-        d, sc = cfg.ddpg, cfg.sac
+        d, sc = cfg.offpolicy, cfg.sac
         rows += [
             (
                 "actor / twin critic MLP",

@@ -204,7 +204,7 @@ def tiny_run(root: Path, params: bool = True) -> Path:
     cfg = {
         "method": "iddpg",
         "env": {"worlds": ["train-0", "train-2"], "episode_length": 16},
-        "ddpg": {"hidden": 8, "depth": 1, "batch_size": 8, "buffer_size": 64},
+        "offpolicy": {"hidden": 8, "depth": 1, "batch_size": 8, "buffer_size": 64},
         "run": {"episodes": 2, "chunk_episodes": 1, "checkpoint_every": 1},
     }
     save_config(from_dict(cfg), root / "config.yaml")

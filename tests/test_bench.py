@@ -27,9 +27,9 @@ def test_sweep_bench_times_one_by_one_and_batched():
         episodes=1,
         overrides=(
             "env.episode_length=16",
-            "ddpg.batch_size=8",
-            "ddpg.hidden=16",
-            "ddpg.buffer_size=64",
+            "offpolicy.batch_size=8",
+            "offpolicy.hidden=16",
+            "offpolicy.buffer_size=64",
             "env.worlds=[train-0,train-0,train-0,train-0,train-0]",  # the smallest room: compiles fastest
         ),
     )

@@ -46,7 +46,7 @@ TINY = {
     # the smallest shipped room for both robots: every subprocess traces the trainer again, and
     # tracing and compiling grow with the rooms' obstacles (train-2 has 30)
     "env": {"worlds": ["train-0", "train-0"], "episode_length": 16},
-    "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
+    "offpolicy": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
     "run": {"episodes": EPISODES, "seeds": SEEDS, "chunk_episodes": 1, "checkpoint_every": 2, "keep_checkpoints": 3},
 }
 TIMEOUT = 300  # s, per subprocess (a loaded 2-core machine)
@@ -294,12 +294,20 @@ def test_a_short_run_of_any_length_follows_with_its_chunk_and_resumes_bitwise(re
     assert_same_run(reference, out)
 
 
-def test_resuming_a_finished_run_rewrites_the_same_results(reference, env, tmp_path):
-    """A kill after the last checkpoint but before the result files: --resume finishes them."""
+@pytest.mark.parametrize("layout", ["saved", "old-ddpg-section"])
+def test_resuming_a_finished_run_rewrites_the_same_results(reference, env, tmp_path, layout):
+    """A kill after the last checkpoint but before the result files: --resume finishes them. Also
+    for a run directory written before the offpolicy section, whose config.yaml holds the off-policy
+    settings in `ddpg:` (docs/learners.md, "Configuration"): it resumes as the same run."""
     out = tmp_path / "run"
     shutil.copytree(reference, out)
     for f in ("metrics.csv", "summary.json", "params.npz"):
         (out / f).unlink()
+    if layout == "old-ddpg-section":
+        data = yaml.safe_load((out / "config.yaml").read_text())
+        data["ddpg"] = {**data.pop("offpolicy"), **data["ddpg"]}
+        (out / "config.yaml").write_text(yaml.safe_dump(data))
+        assert load_config(out / "config.yaml") == load_config(reference / "config.yaml")
     r = run_cli(env, "train", "--resume", out, "--quiet")
     assert r.returncode == 0, r.stderr[-3000:]
     assert_same_run(reference, out)
@@ -338,37 +346,41 @@ def write_cfg(tmp_path: Path, **sections) -> Path:
 
 
 def test_unknown_config_key(tmp_path, capfd):
-    path = write_cfg(tmp_path, ddpg={"hiden": 32})
-    cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.hiden", "allowed")
+    path = write_cfg(tmp_path, offpolicy={"hiden": 32})
+    cli_error(capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "offpolicy.hiden", "allowed")
 
 
 def test_wrong_type(tmp_path, capfd):
-    path = write_cfg(tmp_path, ddpg={"batch_size": "eight"})
+    path = write_cfg(tmp_path, offpolicy={"batch_size": "eight"})
     cli_error(
         capfd,
         ["train", "--config", path, "--out", tmp_path / "run"],
         str(path),
-        "ddpg.batch_size",
+        "offpolicy.batch_size",
         "expected an integer",
     )
 
 
 def test_out_of_range_value(tmp_path, capfd):
-    path = write_cfg(tmp_path, ddpg={"gamma": 1.5})
+    path = write_cfg(tmp_path, offpolicy={"gamma": 1.5})
     cli_error(
         capfd,
         ["train", "--config", path, "--out", tmp_path / "run"],
         str(path),
-        "ddpg.gamma",
+        "offpolicy.gamma",
         "out of range",
         "allowed [0.0, 1.0]",
     )
 
 
 def test_buffer_smaller_than_batch(tmp_path, capfd):
-    path = write_cfg(tmp_path, ddpg={"buffer_size": 4, "batch_size": 8})
+    path = write_cfg(tmp_path, offpolicy={"buffer_size": 4, "batch_size": 8})
     cli_error(
-        capfd, ["train", "--config", path, "--out", tmp_path / "run"], str(path), "ddpg.buffer_size", "ddpg.batch_size"
+        capfd,
+        ["train", "--config", path, "--out", tmp_path / "run"],
+        str(path),
+        "offpolicy.buffer_size",
+        "offpolicy.batch_size",
     )
 
 
@@ -397,10 +409,10 @@ def test_resume_with_a_changed_config_lists_the_fields(reference, tmp_path, capf
     shutil.copy(reference / "config.yaml", out / "config.yaml")
     line = cli_error(
         capfd,
-        ["train", "--resume", out, "--set", "ddpg.hidden=32", "--set", "ddpg.gamma=0.5"],
+        ["train", "--resume", out, "--set", "offpolicy.hidden=32", "--set", "offpolicy.gamma=0.5"],
         str(out / "config.yaml"),
-        "ddpg.hidden",
-        "ddpg.gamma",
+        "offpolicy.hidden",
+        "offpolicy.gamma",
     )
     assert "run.episodes" not in line
 
@@ -433,10 +445,10 @@ def test_incompatible_checkpoint_names_the_path_and_a_field(reference, env, tmp_
     out = tmp_path / "run"
     shutil.copytree(reference, out)
     data = yaml.safe_load((out / "config.yaml").read_text())
-    data["ddpg"]["hidden"] = 32
+    data["offpolicy"]["hidden"] = 32
     (out / "config.yaml").write_text(yaml.safe_dump(data))
     r = run_cli(env, "train", "--resume", out, "--quiet")
-    expect_error(r.returncode, r.stderr, str(out / "checkpoints" / "16"), "ddpg.hidden", "differs")
+    expect_error(r.returncode, r.stderr, str(out / "checkpoints" / "16"), "offpolicy.hidden", "differs")
     cfg = load_config(out / "config.yaml")
     template = Trainer(cfg).init_seeds(jnp.arange(SEEDS), hparams_from_config(cfg))
     ck = Checkpointer(out)
@@ -474,7 +486,7 @@ def test_injected_nan_stops_the_run_and_keeps_the_last_good_checkpoint(env, cfg_
 
     # Continue to 4 episodes with a NaN learning rate: the first update of episode 2 poisons the nets.
     cfg = load_config(out / "config.yaml", ["run.episodes=4"])
-    nan_hp = hparams_from_config(cfg) | {"ddpg.lr": jnp.float32(jnp.nan)}
+    nan_hp = hparams_from_config(cfg) | {"offpolicy.lr": jnp.float32(jnp.nan)}
     with pytest.raises(DivergenceError) as info:
         train(cfg, out, progress=False, hp=nan_hp, resume=True, allow_config_change=True)
     msg = str(info.value)

@@ -106,7 +106,7 @@ def test_a_grid_of_too_many_points_is_refused_at_once(tmp_path):
 
 def test_a_single_seed_point_larger_than_the_budget_is_refused(tmp_path):
     """The planner checked only points of several seeds: one seed of a huge buffer went through."""
-    path = _sweep(tmp_path, seeds=1, set=["ddpg.buffer_size=100000000"])
+    path = _sweep(tmp_path, seeds=1, set=["offpolicy.buffer_size=100000000"])
     line = one_error_line(["sweep", path, "--out", tmp_path / "o", "--memory-budget", "1G", "--quiet"])
     assert "needs 1 rows" in line and "more than the memory budget" in line, line
 

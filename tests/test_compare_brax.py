@@ -60,7 +60,7 @@ def test_sac_settings_are_the_same_numbers_on_both_sides(cb):
     task, s = cb.Task(chunk=1, evals=4), cb.SACSettings()
     b = cb.brax_train_kwargs(task, "sac", s, seed=0)
     cfg = cb.project_config(task, "sac", s, seeds=2)
-    d, sc = cfg.ddpg, cfg.sac
+    d, sc = cfg.offpolicy, cfg.sac
     assert (cfg.method, cfg.learner) == ("iddpg", "sac")
     assert b["num_envs"] == cfg.env.envs_per_robot and b["episode_length"] == cfg.env.episode_length
     assert b["learning_rate"] == d.lr == sc.alpha_lr and b["discounting"] == d.gamma and b["tau"] == sc.tau

@@ -41,23 +41,24 @@ def test_the_shipped_configs_are_all_there():
         ({"ddpg": {"gama": 0.9}}, "ddpg.gama", "unknown key"),
         ({"ddpgs": {"gamma": 0.9}}, "ddpgs", "unknown key"),
         ({"env": {"worlds": ["train-0"], "dt_s": 0.1}}, "env.dt_s", "unknown key"),
-        ({"ddpg": {"batch_size": "big"}}, "ddpg.batch_size", "integer"),
-        ({"ddpg": {"batch_size": 8.5}}, "ddpg.batch_size", "integer"),
-        ({"ddpg": {"batch_size": True}}, "ddpg.batch_size", "integer"),
-        ({"ddpg": {"gamma": "0.9"}}, "ddpg.gamma", "number"),
-        ({"ddpg": {"gamma": float("nan")}}, "ddpg.gamma", "finite"),
+        ({"offpolicy": {"batch_size": "big"}}, "offpolicy.batch_size", "integer"),
+        ({"offpolicy": {"batch_size": 8.5}}, "offpolicy.batch_size", "integer"),
+        ({"offpolicy": {"batch_size": True}}, "offpolicy.batch_size", "integer"),
+        ({"offpolicy": {"gamma": "0.9"}}, "offpolicy.gamma", "number"),
+        ({"offpolicy": {"gamma": float("nan")}}, "offpolicy.gamma", "finite"),
         ({"fed": {"include_targets": 1}}, "fed.include_targets", "true or false"),
         ({"env": {"worlds": "train-0"}}, "env.worlds", "list"),
         ({"env": {"worlds": []}}, "env.worlds", "list"),
         ({"method": 3}, "method", "string"),
         ({"method": "ppo"}, "method", "not one of"),
         ({"env": {"collision_test": "sonar"}}, "env.collision_test", "not one of"),
-        ({"ddpg": {"gamma": 1.5}}, "ddpg.gamma", "out of range"),
+        ({"offpolicy": {"gamma": 1.5}}, "offpolicy.gamma", "out of range"),
         ({"ddpg": {"rho": -0.1}}, "ddpg.rho", "out of range"),
         ({"fed": {"tau": 2}}, "fed.tau", "out of range"),
         ({"env": {"episode_length": 0}}, "env.episode_length", "out of range"),
         ({"run": {"seeds": 0}}, "run.seeds", "out of range"),
         ({"ddpg": "fast"}, "ddpg", "mapping"),
+        ({"offpolicy": "fast"}, "offpolicy", "mapping"),
     ],
 )
 def test_invalid_values_are_rejected_naming_the_key(data, key, what):
@@ -70,8 +71,11 @@ def test_invalid_values_are_rejected_naming_the_key(data, key, what):
 @pytest.mark.parametrize(
     "data, keys",
     [
-        ({"ddpg": {"buffer_size": 64, "batch_size": 128}}, ["ddpg.buffer_size", "ddpg.batch_size"]),
-        ({"ddpg": {"buffer_size": 64, "batch_size": 8, "buffer_alloc": 32}}, ["ddpg.buffer_alloc", "ddpg.buffer_size"]),
+        ({"offpolicy": {"buffer_size": 64, "batch_size": 128}}, ["offpolicy.buffer_size", "offpolicy.batch_size"]),
+        (
+            {"offpolicy": {"buffer_size": 64, "batch_size": 8, "buffer_alloc": 32}},
+            ["offpolicy.buffer_alloc", "offpolicy.buffer_size"],
+        ),
         ({"fed": {"period": 10}, "run": {"episodes": 4, "chunk_episodes": 1}}, ["fed.period", "run.episodes"]),
         (
             {
@@ -156,7 +160,7 @@ def test_missing_and_malformed_files(tmp_path):
     with pytest.raises(ConfigError, match="no such config file"):
         load_config(tmp_path / "nope.yaml")
     bad = tmp_path / "bad.yaml"
-    bad.write_text("ddpg: [unclosed\n")
+    bad.write_text("offpolicy: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(bad)
     bad.write_text("- just\n- a list\n")
@@ -166,20 +170,22 @@ def test_missing_and_malformed_files(tmp_path):
 
 def test_cli_train_with_a_bad_config_returns_2_and_names_the_key(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump({"method": "flddpg", "ddpg": {"gamma": 0.9, "learning_rate": 0.1}}))
+    bad.write_text(yaml.safe_dump({"method": "flddpg", "offpolicy": {"gamma": 0.9, "learning_rate": 0.1}}))
     assert cli.main(["train", "--config", str(bad), "--out", str(tmp_path / "run"), "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and "ddpg.learning_rate" in err and str(bad) in err
+    assert err.startswith("error:") and "offpolicy.learning_rate" in err and str(bad) in err
     assert len(err.strip().splitlines()) == 1  # one line, no traceback
     assert not (tmp_path / "run").exists()  # nothing started
     # a bad --set is reported the same way
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump({"method": "iddpg"}))
     assert (
-        cli.main(["train", "--config", str(good), "--set", "ddpg.gamma=2", "--quiet", "--out", str(tmp_path / "run")])
+        cli.main(
+            ["train", "--config", str(good), "--set", "offpolicy.gamma=2", "--quiet", "--out", str(tmp_path / "run")]
+        )
         == 2
     )
-    assert "ddpg.gamma" in capsys.readouterr().err
+    assert "offpolicy.gamma" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- overrides
@@ -189,35 +195,36 @@ def test_set_overrides_parse_yaml_values_and_validate():
     cfg = load_config(
         PAPER,
         [
-            "ddpg.gamma=0.99",
+            "offpolicy.gamma=0.99",
             "env.worlds=[train-0, eval]",
             "fed.include_targets=true",
             "method=gsddpg",
-            "ddpg.batch_size=64",
+            "offpolicy.batch_size=64",
+            "ddpg.rho=0.5",
         ],
     )
-    assert cfg.ddpg.gamma == 0.99 and isinstance(cfg.ddpg.gamma, float)
+    assert cfg.offpolicy.gamma == 0.99 and isinstance(cfg.offpolicy.gamma, float)
     assert cfg.env.worlds == ("train-0", "eval") and cfg.num_robots == 2
-    assert cfg.fed.include_targets is True and cfg.method == "gsddpg" and cfg.ddpg.batch_size == 64
+    assert cfg.fed.include_targets is True and cfg.method == "gsddpg" and cfg.offpolicy.batch_size == 64
     base = load_config(PAPER)
     assert sorted(diff(base, cfg)) == sorted(
-        ["method", "env.worlds", "ddpg.gamma", "ddpg.batch_size", "fed.include_targets"]
+        ["method", "env.worlds", "offpolicy.gamma", "offpolicy.batch_size", "fed.include_targets", "ddpg.rho"]
     )
     with pytest.raises(ConfigError, match="key=value"):
-        load_config(PAPER, ["ddpg.gamma"])
+        load_config(PAPER, ["offpolicy.gamma"])
     with pytest.raises(ConfigError, match="unknown key 'optim.lr'"):
         load_config(PAPER, ["optim.lr=0.1"])
-    with pytest.raises(ConfigError, match="ddpg.lrate"):
-        load_config(PAPER, ["ddpg.lrate=0.1"])
-    with pytest.raises(ConfigError, match="ddpg.lr"):
-        load_config(PAPER, ["ddpg.lr=fast"])
+    with pytest.raises(ConfigError, match="offpolicy.lrate"):
+        load_config(PAPER, ["offpolicy.lrate=0.1"])
+    with pytest.raises(ConfigError, match="offpolicy.lr"):
+        load_config(PAPER, ["offpolicy.lr=fast"])
 
 
 def test_apply_overrides_does_not_mutate_the_callers_dict():
-    data = {"ddpg": {"gamma": 0.9}, "fed": None}
-    out = apply_overrides(data, ["ddpg.gamma=0.5", "fed.tau=1.0", "run.seeds=3"])
-    assert data == {"ddpg": {"gamma": 0.9}, "fed": None}
-    assert out == {"ddpg": {"gamma": 0.5}, "fed": {"tau": 1.0}, "run": {"seeds": 3}}
+    data = {"offpolicy": {"gamma": 0.9}, "fed": None}
+    out = apply_overrides(data, ["offpolicy.gamma=0.5", "fed.tau=1.0", "run.seeds=3"])
+    assert data == {"offpolicy": {"gamma": 0.9}, "fed": None}
+    assert out == {"offpolicy": {"gamma": 0.5}, "fed": {"tau": 1.0}, "run": {"seeds": 3}}
 
 
 # ----------------------------------------------------------------------------- round trips
@@ -233,11 +240,12 @@ def test_round_trip_to_dict_from_dict_and_save_load(path, tmp_path):
     # the saved file is plain YAML with every section and field (one to one with the dataclasses)
     saved = yaml.safe_load((tmp_path / "c.yaml").read_text())
     assert set(saved) == {*TOP_LEVEL, *SECTIONS} and list(saved)[:2] == ["method", "learner"]
+    assert set(saved["offpolicy"]) == set(to_dict(Config())["offpolicy"])
     assert set(saved["ddpg"]) == set(to_dict(Config())["ddpg"])
 
 
 def test_defaults_round_trip_and_traced_fields():
-    """Every env/ddpg/fed field is either traced or documented as static, never both: the
+    """Every env/offpolicy/ddpg/fed field is either traced or documented as static, never both: the
     `traced=True` metadata is the one declaration (tests/test_sweep.py checks that the trained
     program reads every traced field)."""
     from dataclasses import fields
@@ -246,13 +254,13 @@ def test_defaults_round_trip_and_traced_fields():
 
     assert from_dict({}) == Config() == load_config(None)
     t = set(traced_fields())
-    for section in ("env", "ddpg", "fed"):
+    for section in ("env", "offpolicy", "ddpg", "fed"):
         for f in fields(SECTIONS[section]):
             name = f"{section}.{f.name}"
             static = "(static" in f.metadata["doc"]
             assert static != (name in t), f"{name}: traced={name in t} but doc says {f.metadata['doc']!r}"
     assert not {n for n in t if n.startswith("run.")}  # run fields are bookkeeping, never in the program
-    assert {"env.v_max", "env.collision_distance", "ddpg.buffer_size", "fed.period"} <= t
+    assert {"env.v_max", "env.collision_distance", "offpolicy.buffer_size", "fed.period"} <= t
 
 
 # ----------------------------------------------------------------------------- presets (Table 2)
@@ -265,19 +273,19 @@ def test_thesis_presets_match_table2(path):
     c = load_config(path)
     assert c.num_robots == 5 and "train-1" not in c.env.worlds
     assert (c.run.episodes, c.env.episode_length) == (125, 1024)
-    assert (c.ddpg.train_every, c.ddpg.target_every, c.ddpg.batch_size) == (5, 5, 512)
+    assert (c.offpolicy.train_every, c.ddpg.target_every, c.offpolicy.batch_size) == (5, 5, 512)
     assert (c.ddpg.epsilon_start, c.ddpg.epsilon_decay) == (0.9, 0.99997)
-    assert (c.ddpg.lr, c.ddpg.gamma, c.ddpg.rho, c.ddpg.hidden) == (1e-3, 0.9, 1.0, 64)
+    assert (c.offpolicy.lr, c.offpolicy.gamma, c.ddpg.rho, c.offpolicy.hidden) == (1e-3, 0.9, 1.0, 64)
     assert c.env.v_max == 0.25
     assert (c.fed.period_unit, c.fed.period, c.fed.tau) == ("episodes", 2, 0.5)
     if path.stem in THESIS_BUFFERS:
-        assert c.ddpg.buffer_size == THESIS_BUFFERS[path.stem]
+        assert c.offpolicy.buffer_size == THESIS_BUFFERS[path.stem]
 
 
 def test_paper_preset_matches_table2():
     c = load_config(PAPER)
     assert c.num_robots == 6 and c.method == "flddpg"
-    assert (c.run.episodes, c.env.episode_length, c.ddpg.buffer_size) == (1000, 256, 50_000)
-    assert (c.ddpg.epsilon_start, c.ddpg.epsilon_decay, c.ddpg.lr) == (0.9, 0.99995, 1e-4)
-    assert (c.ddpg.gamma, c.ddpg.rho, c.ddpg.batch_size, c.ddpg.hidden) == (0.9, 0.01, 512, 512)
+    assert (c.run.episodes, c.env.episode_length, c.offpolicy.buffer_size) == (1000, 256, 50_000)
+    assert (c.ddpg.epsilon_start, c.ddpg.epsilon_decay, c.offpolicy.lr) == (0.9, 0.99995, 1e-4)
+    assert (c.offpolicy.gamma, c.ddpg.rho, c.offpolicy.batch_size, c.offpolicy.hidden) == (0.9, 0.01, 512, 512)
     assert c.env.v_max == 1.0 and (c.fed.period_unit, c.fed.period, c.fed.tau) == ("episodes", 1, 0.5)

@@ -36,7 +36,7 @@ def tiny_config(folder: Path) -> Path:
     cfg = {
         "method": "flddpg",
         "env": {"worlds": worlds, "episode_length": 32},
-        "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
+        "offpolicy": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
         "fed": {"period": 1},
         "run": {"episodes": EPISODES, "seeds": 1, "chunk_episodes": 1, "checkpoint_every": 2},
     }

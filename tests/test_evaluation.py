@@ -234,7 +234,7 @@ def tiny_run(tmp_path_factory):
         {
             "method": "iddpg",
             "env": {"worlds": [str(world_file)] * 2, "episode_length": 16},
-            "ddpg": {"hidden": 16, "depth": 2, "buffer_size": 64, "batch_size": 8},
+            "offpolicy": {"hidden": 16, "depth": 2, "buffer_size": 64, "batch_size": 8},
             "fed": {"period": 1},
             "run": {"episodes": 1, "seeds": 2, "chunk_episodes": 1, "checkpoint_every": 0},
         }
@@ -530,7 +530,7 @@ def test_robustness_report_evaluates_points_and_notes_a_diverged_one(tiny_run, t
     from fedjax_nav.experiments.robustness import evaluate_arena
 
     run_dir, _ = tiny_run
-    spec = {"name": "r", "base": str(run_dir / "config.yaml"), "seeds": 2, "grid": {"ddpg.lr": [0.001, 0.002]}}
+    spec = {"name": "r", "base": str(run_dir / "config.yaml"), "seeds": 2, "grid": {"offpolicy.lr": [0.001, 0.002]}}
     (tmp_path / "r.yaml").write_text(yaml.safe_dump(spec))
     sweep = load_sweep(tmp_path / "r.yaml")
     ok, bad = (tmp_path / "points" / p.id for p in sweep.points)

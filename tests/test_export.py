@@ -89,7 +89,7 @@ def run_dir(tmp_path_factory):
         {
             "method": "iddpg",
             "env": {"worlds": ["train-0", "train-2"], "num_beams": NUM_BEAMS, "max_range": MAX_RANGE, **ENV},
-            "ddpg": {"hidden": HIDDEN, "depth": DEPTH, "activation": "relu"},
+            "offpolicy": {"hidden": HIDDEN, "depth": DEPTH, "activation": "relu"},
             "run": {"seeds": SEEDS, "seed": FIRST_SEED},
         }
     )

@@ -32,7 +32,7 @@ NUM_BEAMS = 24
 SEQ, RESET_AT, N_SEQ = 10, 5, 64  # recurrent: N_SEQ sequences of SEQ steps, a reset before step RESET_AT
 
 CASES = {
-    "sac": {"learner": "sac", "ddpg": {"hidden": 16, "depth": 2, "activation": "relu"}},
+    "sac": {"learner": "sac", "offpolicy": {"hidden": 16, "depth": 2, "activation": "relu"}},
     "ppo": {"learner": "ppo", "ppo": {"hidden": 16, "depth": 2, "activation": "tanh"}},
     "ppo-elu": {"learner": "ppo", "ppo": {"hidden": 16, "depth": 3, "activation": "elu"}},
     "ppo-gru": {

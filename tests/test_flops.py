@@ -35,10 +35,12 @@ def ddpg_setup():
 def test_the_ddpg_update_counted_on_its_jaxpr_is_the_analytic_count_less_the_unneeded_input_gradients(ddpg_setup):
     cfg, learner, nets, hp = ddpg_setup
     per_event, per_act = flops.learner_flops(learner, nets, 28, 1, hp)
-    analytic = cfg.ddpg.gradient_steps * update_flops(28, cfg.ddpg.hidden, cfg.ddpg.depth, cfg.ddpg.batch_size)
+    analytic = cfg.offpolicy.gradient_steps * update_flops(
+        28, cfg.offpolicy.hidden, cfg.offpolicy.depth, cfg.offpolicy.batch_size
+    )
     # The analytic count takes every layer's backward as 2x its forward; autodiff skips the input
     # gradient of the first layers (actor and critic: 28x64 and 30x64 per row, 2 FLOPs a MAC).
-    skipped = cfg.ddpg.gradient_steps * cfg.ddpg.batch_size * 2 * (28 * 64 + 30 * 64)
+    skipped = cfg.offpolicy.gradient_steps * cfg.offpolicy.batch_size * 2 * (28 * 64 + 30 * 64)
     assert per_event == analytic - skipped
-    h = cfg.ddpg.hidden
-    assert per_act == 2 * (28 * h + (cfg.ddpg.depth - 1) * h * h + h * 2)  # one actor forward
+    h = cfg.offpolicy.hidden
+    assert per_act == 2 * (28 * h + (cfg.offpolicy.depth - 1) * h * h + h * 2)  # one actor forward

@@ -147,11 +147,11 @@ def test_cli_evaluate_random_config_is_one_line_exit_2(folder, data):
 @settings(max_examples=15, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 @given(raw=st.text(max_size=20))
 def test_cli_set_random_value_is_one_line_or_refused_for_memory(raw):
-    """`train --set ddpg.gamma=<random>`: a bad value is one line, exit 2; a good one reaches the
+    """`train --set offpolicy.gamma=<random>`: a bad value is one line, exit 2; a good one reaches the
     memory check, which a 1-byte budget refuses (exit 2, one line): nothing is ever trained."""
     err = io.StringIO()
     with redirect_stderr(err):
-        rc = cli.main(["train", "--set", f"ddpg.gamma={raw}", "--memory-budget", "1", "--quiet"])
+        rc = cli.main(["train", "--set", f"offpolicy.gamma={raw}", "--memory-budget", "1", "--quiet"])
     lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
     assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), err.getvalue()
 
@@ -179,7 +179,7 @@ def alias_tree(levels: int, fanout: int, mapping: bool) -> tuple[str, int]:
     levels=st.integers(1, 9),
     fanout=st.integers(1, 9),
     mapping=st.booleans(),
-    field=st.sampled_from(["env.worlds", "run.eval_suite", "ddpg.gamma", "method"]),
+    field=st.sampled_from(["env.worlds", "run.eval_suite", "offpolicy.gamma", "method"]),
     in_file=st.booleans(),
 )
 def test_yaml_aliases_are_refused_exactly_beyond_the_budget(folder, levels, fanout, mapping, field, in_file):

@@ -122,7 +122,9 @@ def test_files_beyond_the_size_bound_are_refused_before_reading(tmp_path):
 # ----------------------------------------------------------------------------- integer and float widths
 
 
-@pytest.mark.parametrize("key", ["ddpg.train_every", "ddpg.target_every", "fed.krum_f", "fed.period", "fed.krum_m"])
+@pytest.mark.parametrize(
+    "key", ["offpolicy.train_every", "ddpg.target_every", "fed.krum_f", "fed.period", "fed.krum_m"]
+)
 def test_integers_beyond_int32_are_refused_naming_the_field(key):
     msg = refused(load_config, None, [f"{key}=100000000000000000000"])
     assert msg.startswith(f"--set: {key}: ") and "out of range" in msg and "2147483647" in msg, msg
@@ -142,9 +144,11 @@ def test_every_int_field_is_held_to_int32_and_every_float_field_to_float32():
 
 
 def test_the_largest_traced_integers_reach_the_program_exactly():
-    cfg = load_config(None, ["ddpg.train_every=2147483647", "ddpg.target_every=2147483647", "method=iddpg"])
+    cfg = load_config(None, ["offpolicy.train_every=2147483647", "ddpg.target_every=2147483647", "method=iddpg"])
     hp = hparams_from_config(cfg)
-    assert int(hp.ddpg.train_every) == 2**31 - 1 and hp.ddpg.train_every.dtype == dtype("ddpg.train_every")
+    assert int(hp.offpolicy.train_every) == 2**31 - 1 and hp.offpolicy.train_every.dtype == dtype(
+        "offpolicy.train_every"
+    )
 
 
 @pytest.mark.parametrize(
@@ -212,7 +216,7 @@ def test_room_spec_without_procedural_rooms_is_refused():
 @pytest.mark.parametrize(
     "text, key",
     [
-        ("ddpg:\n  gamma: 0.5\n  gamma: 0.7\n", "'gamma'"),
+        ("offpolicy:\n  gamma: 0.5\n  gamma: 0.7\n", "'gamma'"),
         ("run:\n  seeds: 2\nrun:\n  seeds: 3\n", "'run'"),
         ("method: iddpg\nmethod: flddpg\n", "'method'"),
     ],
@@ -239,19 +243,23 @@ def test_yaml_merge_keys_may_still_be_overridden():
     [
         ("- 1\n", "must be a mapping"),
         ("ddpg: [1, 2]\n", "'ddpg' must be a mapping"),
-        ("ddpg:\n  gamma: 5\n", "ddpg.gamma: 5 is out of range"),
+        ("offpolicy:\n  gamma: 5\n", "offpolicy.gamma: 5 is out of range"),
+        ("ddpg:\n  gamma: 5\n", "ddpg.gamma: 5 is out of range"),  # the old name, named as written
         ("ddpg:\n  gama: 0.9\n", "unknown key 'ddpg.gama'"),
     ],
 )
 def test_an_error_in_the_file_names_the_file_even_with_set(tmp_path, text, needle):
     path = write(tmp_path / "c.yaml", text)
-    msg = refused(load_config, path, ["ddpg.lr=0.01"])
+    msg = refused(load_config, path, ["offpolicy.lr=0.01"])
     assert msg.startswith(f"{path}: ") and needle in msg and "--set" not in msg, msg
 
 
 def test_an_error_in_a_set_value_names_set_not_the_file(tmp_path):
     path = write(tmp_path / "c.yaml", "ddpg:\n  gamma: 0.9\n")
-    for item, needle in [("ddpg.gamma=5", "--set: ddpg.gamma: "), ("ddpg.gama=1", "--set: unknown key 'ddpg.gama'")]:
+    for item, needle in [
+        ("offpolicy.gamma=5", "--set: offpolicy.gamma: "),
+        ("ddpg.gama=1", "--set: unknown key 'ddpg.gama'"),
+    ]:
         msg = refused(load_config, path, [item])
         assert msg.startswith(needle) and str(path) not in msg, msg
 

@@ -1,5 +1,5 @@
 """Two learner options of docs/learners.md: PPO's observation normalisation (`ppo.normalize_obs`)
-and n-step returns of the off-policy learners (`ddpg.n_step`, for ddpg, td3 and sac).
+and n-step returns of the off-policy learners (`offpolicy.n_step`, for ddpg, td3 and sac).
 
 - The normaliser's statistics after each rollout are numpy's mean and variance over every
   rollout seen; the rollout is evaluated with the statistics that acted (the stored log-densities
@@ -121,11 +121,11 @@ TINY = [
     "run.chunk_episodes=1",
     "run.checkpoint_every=0",
     "fed.period=1",
-    "ddpg.batch_size=4",
-    "ddpg.buffer_size=64",
-    "ddpg.hidden=8",
-    "ddpg.depth=1",
-    "ddpg.train_every=2",
+    "offpolicy.batch_size=4",
+    "offpolicy.buffer_size=64",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
+    "offpolicy.train_every=2",
     "ppo.hidden=8",
     "ppo.depth=1",
     "ppo.rollout=4",
@@ -180,7 +180,7 @@ def nstep_run():
     """DDPG with 3-step targets and SEDDPG's one buffer of every robot's environments (4 rows a
     step), 2 episodes: windows of one environment step 4 rows at a time (the learners share the
     replay code: TD3's and SAC's n-step updates are tested below)."""
-    return run_chunk(make_cfg("ddpg", ["ddpg.n_step=3", "run.episodes=2", "run.chunk_episodes=2"], "seddpg"))
+    return run_chunk(make_cfg("ddpg", ["offpolicy.n_step=3", "run.episodes=2", "run.chunk_episodes=2"], "seddpg"))
 
 
 def test_an_n_step_run_is_finite_and_keeps_where_episodes_were_cut(nstep_run):
@@ -198,12 +198,15 @@ def test_an_n_step_run_is_finite_and_keeps_where_episodes_were_cut(nstep_run):
 
 @pytest.mark.parametrize("learner", ["td3", "ddpg"])
 def test_the_warm_up_acts_uniformly_for_its_steps_and_then_hands_over(learner):
-    """ddpg.random_steps over 2 episodes of 4 steps: at 0 the run is bitwise the one without the
+    """offpolicy.random_steps over 2 episodes of 4 steps: at 0 the run is bitwise the one without the
     field (the draws have their own key); at 2 the rows of steps 0-1 are uniform draws over the box,
     the same draws as a warm-up of all 8 steps makes, and from step 2 on the exploration acts."""
-    base = ["run.episodes=2", "run.chunk_episodes=2", "ddpg.buffer_size=64", "ddpg.train_every=1000"]
-    runs = [run_chunk(make_cfg(learner, [*base, *x])) for x in ([], ["ddpg.random_steps=0"], ["ddpg.random_steps=2"])]
-    runs.append(run_chunk(make_cfg(learner, [*base, "ddpg.random_steps=8"])))
+    base = ["run.episodes=2", "run.chunk_episodes=2", "offpolicy.buffer_size=64", "offpolicy.train_every=1000"]
+    runs = [
+        run_chunk(make_cfg(learner, [*base, *x]))
+        for x in ([], ["offpolicy.random_steps=0"], ["offpolicy.random_steps=2"])
+    ]
+    runs.append(run_chunk(make_cfg(learner, [*base, "offpolicy.random_steps=8"])))
     tr = runs[0][0]
     plain, zero, two, all_ = (np.asarray(r[1].buffers.action[0]).reshape(tr.n_bufs, -1, tr.writes, 2) for r in runs)
     np.testing.assert_array_equal(zero, plain)
@@ -253,7 +256,7 @@ def np_nstep(seq, env, t, n, gamma):
 def _filled(nets, seq):
     """The learner's storage after the sequence, written by its own `store` (rows = ENVS)."""
     reward, term, trunc, obs, next_obs = seq
-    hp = HParams() | {"ddpg.buffer_size": jnp.int32(CAP)}
+    hp = HParams() | {"offpolicy.buffer_size": jnp.int32(CAP)}
     buf = learners.TD3.storage(nets, OBS, ENVS)
     store = jax.jit(lambda b, r, g: learners.TD3.store(nets, b, r, g, ENVS, hp))
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
@@ -266,7 +269,7 @@ def _filled(nets, seq):
     return buf
 
 
-OFF_POLICY = ["ddpg.batch_size=4", "ddpg.train_every=1", f"ddpg.buffer_size={CAP}"]
+OFF_POLICY = ["offpolicy.batch_size=4", "offpolicy.train_every=1", f"offpolicy.buffer_size={CAP}"]
 
 
 def _nets(n_step: int, batch: int = 256):
@@ -328,11 +331,11 @@ def _today(name, nets, state, buf, key, g, hp):
     split it and learn from `one_step` rows."""
     count = (g + 1) * ENVS
     if name == "ddpg":
-        return ddpg.update(nets, state, rb.sample(buf, key, 4, count, CAP), hp.ddpg.gamma, hp.ddpg.lr)
+        return ddpg.update(nets, state, rb.sample(buf, key, 4, count, CAP), hp.offpolicy.gamma, hp.offpolicy.lr)
     k_batch, k_step = jax.random.split(key)
-    batch = offpolicy.one_step(rb.sample(buf, k_batch, 4, count, CAP), hp.ddpg.gamma)
+    batch = offpolicy.one_step(rb.sample(buf, k_batch, 4, count, CAP), hp.offpolicy.gamma)
     if name == "td3":
-        index = (g + 1) // hp.ddpg.train_every - 1  # the gradient step's index in the run
+        index = (g + 1) // hp.offpolicy.train_every - 1  # the gradient step's index in the run
         return td3.update(nets, state, batch, k_step, hp, index % hp.td3.policy_delay == 0)
     return sac.update(nets, state, batch, k_step, hp)
 
@@ -363,11 +366,11 @@ def test_n_step_one_updates_are_todays_and_n_step_updates_are_finite(name, fille
 @pytest.mark.parametrize(
     "learner,extra,match",
     [
-        ("ppo", ["ddpg.n_step=3"], r"ddpg.n_step \(3\) needs an off-policy learner: ddpg, td3, sac"),
+        ("ppo", ["offpolicy.n_step=3"], r"offpolicy.n_step \(3\) needs an off-policy learner: ddpg, td3, sac"),
         ("td3", ["ppo.normalize_obs=true"], "ppo.normalize_obs needs learner: ppo"),
-        ("sac", ["ddpg.n_step=40"], r"ddpg.n_step \(40\) x rows written per step into one buffer \(2\)"),
-        ("sac", ["ddpg.n_step=0"], "ddpg.n_step"),
-        ("ppo", ["ddpg.random_steps=10"], r"ddpg.random_steps \(10\) needs an off-policy learner"),
+        ("sac", ["offpolicy.n_step=40"], r"offpolicy.n_step \(40\) x rows written per step into one buffer \(2\)"),
+        ("sac", ["offpolicy.n_step=0"], "offpolicy.n_step"),
+        ("ppo", ["offpolicy.random_steps=10"], r"offpolicy.random_steps \(10\) needs an off-policy learner"),
     ],
 )
 def test_config_refuses_the_options_where_they_do_not_apply(learner, extra, match):

@@ -33,11 +33,11 @@ TINY = [
     "run.chunk_episodes=2",
     "run.checkpoint_every=0",
     "fed.period=1",
-    "ddpg.batch_size=4",
-    "ddpg.buffer_size=64",
-    "ddpg.hidden=8",
-    "ddpg.depth=1",
-    "ddpg.train_every=2",
+    "offpolicy.batch_size=4",
+    "offpolicy.buffer_size=64",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
+    "offpolicy.train_every=2",
     "ppo.hidden=8",
     "ppo.depth=1",
     f"ppo.rollout={ROLLOUT}",
@@ -80,7 +80,7 @@ def runs():
             # N = 3 runs federate (soft FedAvg) and take 2 gradient steps per update event;
             # N = 1 runs are independent learners (a smaller program)
             extra = [f"env.envs_per_robot={n}"]
-            extra += ["ddpg.gradient_steps=2"] if n > 1 else []
+            extra += ["offpolicy.gradient_steps=2"] if n > 1 else []
             extra += ["ppo.recurrent=gru", "ppo.minibatches=3"] if recurrent else []
             cache[key] = Run(make_cfg(learner, "flddpg" if n > 1 else "iddpg", extra))
         return cache[key]
@@ -193,7 +193,7 @@ def _changed(hp, names):
 
 
 def _own_traced(learner: str):
-    shared = ("ddpg.lr", "ddpg.gamma") if learner in ("td3", "sac") else ()
+    shared = ("offpolicy.lr", "offpolicy.gamma") if learner in ("td3", "sac") else ()
     return [k for k in traced_fields() if k.startswith(f"{learner}.")] + list(shared)
 
 

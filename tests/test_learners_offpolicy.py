@@ -331,7 +331,7 @@ def test_td3_bandit_probe_finds_the_best_action(td3_train):
     nets, train, _ = td3_train
     buf = bandit_buffer(jax.random.key(1))
     s0, s, losses = train(
-        jax.random.key(0), buf, jnp.float32(0.9), HParams().replace_flat({"ddpg.lr": 3e-3, "td3.tau": 0.05})
+        jax.random.key(0), buf, jnp.float32(0.9), HParams().replace_flat({"offpolicy.lr": 3e-3, "td3.tau": 0.05})
     )
     assert np.all(np.isfinite(np.asarray(losses)))
     mu0, mu = (np.asarray(td3.greedy(nets, x.actor, jnp.ones(OBS))) for x in (s0, s))
@@ -344,7 +344,7 @@ def test_td3_bandit_probe_finds_the_best_action(td3_train):
 def test_td3_update_compiles_once_for_every_traced_hyperparameter(td3_train):
     _, train, traces = td3_train
     buf = bandit_buffer(jax.random.key(1))
-    hp = HParams().replace_flat({"ddpg.lr": 3e-4, "td3.tau": 0.01, "td3.policy_noise": 0.1, "td3.noise_clip": 0.2})
+    hp = HParams().replace_flat({"offpolicy.lr": 3e-4, "td3.tau": 0.01, "td3.policy_noise": 0.1, "td3.noise_clip": 0.2})
     train(jax.random.key(0), buf, jnp.float32(0.5), hp)
     train(jax.random.key(0), buf, jnp.float32(0.99), HParams())
     assert len(traces) == 1
@@ -356,7 +356,7 @@ def test_td3_update_compiles_once_for_every_traced_hyperparameter(td3_train):
 SAC_TARGET_ENTROPY = -4.0
 SAC_ALPHA = float(np.exp(SAC_TARGET_ENTROPY) / (np.pi * np.e))
 SAC_HP = HParams().replace_flat(
-    {"ddpg.lr": 3e-3, "sac.alpha_lr": 3e-2, "sac.tau": 0.05, "sac.target_entropy": SAC_TARGET_ENTROPY}
+    {"offpolicy.lr": 3e-3, "sac.alpha_lr": 3e-2, "sac.tau": 0.05, "sac.target_entropy": SAC_TARGET_ENTROPY}
 )
 
 
@@ -407,14 +407,16 @@ def test_sac_temperature_moves_towards_the_target_and_compiles_once(sac_train):
         buf,
         jnp.float32(0.5),
         jnp.float32(0.3),
-        HParams().replace_flat({"ddpg.lr": 1e-4, "sac.alpha_lr": 3e-4, "sac.tau": 0.1, "sac.target_entropy": 10.0}),
+        HParams().replace_flat(
+            {"offpolicy.lr": 1e-4, "sac.alpha_lr": 3e-4, "sac.tau": 0.1, "sac.target_entropy": 10.0}
+        ),
     )
     _, _, _, down = train(
         jax.random.key(0),
         buf,
         jnp.float32(0.99),
         jnp.float32(2.0),
-        HParams().replace_flat({"sac.target_entropy": -20.0, "ddpg.lr": 3e-4}),
+        HParams().replace_flat({"sac.target_entropy": -20.0, "offpolicy.lr": 3e-4}),
     )
     assert float(up[1]) > float(up[0]) == pytest.approx(0.3)  # entropy below the target: alpha rises
     assert float(down[1]) < float(down[0]) == pytest.approx(2.0)

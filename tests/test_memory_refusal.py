@@ -1,6 +1,6 @@
 """Unbounded work is refused before it is allocated (docs/reliability.md, "Memory: evaluation and
 activations"): an evaluation whose trajectories or episode states would not fit (`--attempts`,
-`--max-steps`), a training run whose per-update activations would not fit (`ddpg.batch_size`),
+`--max-steps`), a training run whose per-update activations would not fit (`offpolicy.batch_size`),
 by the one budget rule of `fedjax_nav.config.memory`; and the degenerate inputs of evaluate and
 export (zero counts, a params.npz without seeds) as one line, exit 2.
 
@@ -66,7 +66,7 @@ def write_run(root: Path, seeds: int = SEEDS) -> Path:
         {
             "method": "iddpg",
             "env": {"worlds": ["train-0", "train-2"], "episode_length": 32},
-            "ddpg": {"hidden": HIDDEN, "depth": DEPTH},
+            "offpolicy": {"hidden": HIDDEN, "depth": DEPTH},
             "run": {"seeds": max(seeds, 1)},
         }
     )
@@ -193,16 +193,18 @@ def test_a_params_file_without_seeds_is_one_line(tmp_path, capfd, command):
 
 
 def big_batch_config():
-    return load_config(ROOT / "configs/thesis/flddpg.yaml", ["ddpg.batch_size=1000000", "ddpg.buffer_size=1000000"])
+    return load_config(
+        ROOT / "configs/thesis/flddpg.yaml", ["offpolicy.batch_size=1000000", "offpolicy.buffer_size=1000000"]
+    )
 
 
 def test_train_counts_the_update_activations():
     """batch 1e6 x buffer 1e6 (FLDDPG, 5 networks): the state is ~1.1 GiB, one update ~21 GB (the
-    allocation that failed with a traceback); the estimate names ddpg.batch_size."""
+    allocation that failed with a traceback); the estimate names offpolicy.batch_size."""
     with pytest.raises(ResourceError) as info:
         check_memory(Trainer(big_batch_config()), budget=8 * GIB, src="flddpg.yaml")
     msg = str(info.value)
-    assert msg.startswith("flddpg.yaml: ddpg.batch_size = 1000000: the run needs about 2"), msg
+    assert msg.startswith("flddpg.yaml: offpolicy.batch_size = 1000000: the run needs about 2"), msg
     assert "activations 23.7 GiB" in msg and "memory budget (--memory-budget), 8.0 GiB" in msg, msg
 
 
@@ -211,8 +213,8 @@ def test_train_refuses_the_big_batch_before_allocating(tmp_path, capfd):
     one_line(
         capfd,
         ["train", "--config", ROOT / "configs/thesis/flddpg.yaml", "--out", out, "--quiet", "--memory-budget", "8G"]
-        + ["--set", "ddpg.batch_size=1000000", "--set", "ddpg.buffer_size=1000000"],
-        "ddpg.batch_size = 1000000",
+        + ["--set", "offpolicy.batch_size=1000000", "--set", "offpolicy.buffer_size=1000000"],
+        "offpolicy.batch_size = 1000000",
         "activations",
     )
     assert not out.exists()

@@ -37,9 +37,9 @@ TINY = [
     "env.episode_length=16",
     "run.chunk_episodes=2",
     "run.episodes=2",
-    "ddpg.batch_size=8",
-    "ddpg.buffer_size=128",
-    "ddpg.hidden=16",
+    "offpolicy.batch_size=8",
+    "offpolicy.buffer_size=128",
+    "offpolicy.hidden=16",
     "run.checkpoint_every=0",
     "fed.period=1",
 ]

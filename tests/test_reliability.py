@@ -6,7 +6,7 @@ a diverged actor refused.
 
 Every training here is the same tiny program (one compilation, shared through the persistent
 compilation cache of tests/conftest.py): 2 robots, 16 steps per episode, 2 episodes per chunk.
-Updates start once a buffer holds ddpg.batch_size = 20 rows, i.e. in episode 1, so episode 0 is
+Updates start once a buffer holds offpolicy.batch_size = 20 rows, i.e. in episode 1, so episode 0 is
 always finite and a poisoned or bounded run diverges at episode 1, inside the first chunk.
 """
 
@@ -35,7 +35,7 @@ ROBOTS = 2
 TINY = {
     "method": "iddpg",
     "env": {"worlds": ["train-0", "train-0"], "episode_length": 16},  # the smallest room: compiles fastest
-    "ddpg": {"hidden": 16, "depth": 2, "batch_size": 20, "buffer_size": 64},
+    "offpolicy": {"hidden": 16, "depth": 2, "batch_size": 20, "buffer_size": 64},
     "run": {"episodes": 4, "seeds": 1, "chunk_episodes": 2, "checkpoint_every": 2, "keep_checkpoints": 3},
 }
 TIMEOUT = 300
@@ -142,7 +142,7 @@ def test_default_run_folders_of_runs_started_together_differ(capfd):
     # refused for memory before anything is created: only the announced folder name is compared
     names = []
     for _ in range(2):
-        assert cli.main(["train", "--set", "ddpg.buffer_size=9e7", "--quiet"]) == 2
+        assert cli.main(["train", "--set", "offpolicy.buffer_size=9e7", "--quiet"]) == 2
         names.append(capfd.readouterr().out.strip().rsplit("-> ", 1)[1])
     assert names[0] != names[1] and all(n.startswith("runs/flddpg-") for n in names)
     assert not any(Path(n).exists() for n in names)
@@ -194,7 +194,7 @@ def test_a_crossed_divergence_bound_stops_the_run_and_keeps_the_good_episodes(cf
 def test_nan_at_episode_1_keeps_the_metrics_of_episode_0(cfg_file, tmp_path):
     out = tmp_path / "run"
     cfg = load_config(cfg_file)
-    nan_hp = hparams_from_config(cfg) | {"ddpg.lr": jnp.float32(jnp.nan)}
+    nan_hp = hparams_from_config(cfg) | {"offpolicy.lr": jnp.float32(jnp.nan)}
     with pytest.raises(DivergenceError) as info:
         train(cfg, out, progress=False, hp=nan_hp)
     msg = str(info.value)
@@ -209,11 +209,11 @@ def test_nan_at_episode_1_keeps_the_metrics_of_episode_0(cfg_file, tmp_path):
 @pytest.mark.parametrize(
     "override, needles",
     [
-        ("ddpg.buffer_size=5e7", ("ddpg.buffer_size = 50000000", "GiB", "memory")),
-        ("ddpg.buffer_size=1e10", ("ddpg.buffer_size", "out of range")),
+        ("offpolicy.buffer_size=5e7", ("offpolicy.buffer_size = 50000000", "GiB", "memory")),
+        ("offpolicy.buffer_size=1e10", ("offpolicy.buffer_size", "out of range")),
         ("env.episode_length=1e10", ("env.episode_length", "out of range")),
-        ("ddpg.hidden=1e8", ("ddpg.hidden", "out of range")),
-        ("ddpg.depth=100", ("ddpg.depth", "out of range")),
+        ("offpolicy.hidden=1e8", ("offpolicy.hidden", "out of range")),
+        ("offpolicy.depth=100", ("offpolicy.depth", "out of range")),
         ("run.episodes=1e12", ("run.episodes", "out of range")),
         ("run.seeds=100000", ("run.seeds", "out of range")),
     ],
@@ -238,7 +238,7 @@ def test_memory_budget_flag(cfg_file, tmp_path, capfd):
     cli_error(
         capfd,
         ["train", "--config", cfg_file, "--out", tmp_path / "run", "--memory-budget", "10K"],
-        "ddpg.hidden = 16",
+        "offpolicy.hidden = 16",
         "memory budget",
         "10.0 KiB",
     )
@@ -275,7 +275,10 @@ def unreadable_cases(tmp: Path, cfg_file: Path, trained: Path):
         (["train", "--config", bad_yaml], (str(bad_yaml), "not valid YAML", "line 3, column")),
         (["train", "--config", latin], (str(latin), "not UTF-8")),
         (["train", "--config", folder], (str(folder), "is a directory")),
-        (["train", "--config", cfg_file, "--set", "ddpg.gamma=[1"], ("--set ddpg.gamma", "not valid YAML", "line 1")),
+        (
+            ["train", "--config", cfg_file, "--set", "offpolicy.gamma=[1"],
+            ("--set offpolicy.gamma", "not valid YAML", "line 1"),
+        ),
         (["train", "--config", world_cfg, "--out", tmp / "w"], (str(world_bin), "not UTF-8")),
         (["sweep", folder], (str(folder), "is a directory", "sweep")),
         (["evaluate", run_cfg_dir], (str(run_cfg_dir / "config.yaml"), "is a directory")),
@@ -291,13 +294,13 @@ def test_every_unreadable_input_is_one_line_exit_2(cfg_file, trained, tmp_path, 
 def test_yaml_1_1_exponents_are_numbers(tmp_path):
     path = tmp_path / "c.yaml"
     data = json.loads(json.dumps(TINY))
-    data["ddpg"].update(lr="1e-3", buffer_size="1e2")  # how YAML 1.1 reads 1e-3 and 1e2
+    data["offpolicy"].update(lr="1e-3", buffer_size="1e2")  # how YAML 1.1 reads 1e-3 and 1e2
     path.write_text(yaml.safe_dump(data).replace("'1e-3'", "1e-3").replace("'1e2'", "1e2"))
-    cfg = load_config(path, ["ddpg.gamma=9.0e-1", "run.episodes=1.0e1"])
-    assert (cfg.ddpg.lr, cfg.ddpg.buffer_size, cfg.ddpg.gamma, cfg.run.episodes) == (1e-3, 100, 0.9, 10)
-    assert isinstance(cfg.ddpg.buffer_size, int)
-    with pytest.raises(ConfigError, match="ddpg.hidden: expected an integer"):
-        load_config(path, ["ddpg.hidden=1.5e0"])
+    cfg = load_config(path, ["offpolicy.gamma=9.0e-1", "run.episodes=1.0e1"])
+    assert (cfg.offpolicy.lr, cfg.offpolicy.buffer_size, cfg.offpolicy.gamma, cfg.run.episodes) == (1e-3, 100, 0.9, 10)
+    assert isinstance(cfg.offpolicy.buffer_size, int)
+    with pytest.raises(ConfigError, match="offpolicy.hidden: expected an integer"):
+        load_config(path, ["offpolicy.hidden=1.5e0"])
 
 
 def test_a_full_disk_is_one_line_exit_4(cfg_file, tmp_path, capfd, monkeypatch):
@@ -367,7 +370,7 @@ def test_a_checkpoint_without_its_manifest_is_one_line(trained, env, tmp_path):
 def test_resume_refuses_a_hand_edited_config(trained, tmp_path, capfd):
     out = copy_run(trained, tmp_path)
     data = yaml.safe_load((out / "config.yaml").read_text())
-    data["method"], data["ddpg"]["gamma"] = "seddpg", 0.5
+    data["method"], data["offpolicy"]["gamma"] = "seddpg", 0.5
     (out / "config.yaml").write_text(yaml.safe_dump(data))
     line = cli_error(
         capfd,
@@ -375,11 +378,11 @@ def test_resume_refuses_a_hand_edited_config(trained, tmp_path, capfd):
         str(out / "config.yaml"),
         str(out / "checkpoints" / "4"),
         "method",
-        "ddpg.gamma",
+        "offpolicy.gamma",
         "--allow-config-change",
     )
     assert "run.episodes" not in line.split("; resuming")[0]
-    cli_error(capfd, ["train", "--resume", out, "--quiet", "--allow-config-change"], "method", "ddpg.gamma")
+    cli_error(capfd, ["train", "--resume", out, "--quiet", "--allow-config-change"], "method", "offpolicy.gamma")
 
 
 def test_allow_config_change_extends_a_run(trained, tmp_path, capfd):

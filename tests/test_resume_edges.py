@@ -43,7 +43,7 @@ def dead_pid() -> int:
 TINY = {
     "method": "iddpg",
     "env": {"worlds": ["train-0", "train-2"], "episode_length": 16},
-    "ddpg": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
+    "offpolicy": {"hidden": 16, "depth": 2, "batch_size": 8, "buffer_size": 64},
     "run": {"episodes": 2, "seeds": 1, "chunk_episodes": 1},
 }
 
@@ -199,5 +199,5 @@ def test_flat_config_names_every_field():
     from fedjax_nav.training.preflight import to_dict_flat
 
     flat = to_dict_flat(Config())
-    assert flat["ddpg.gamma"] == 0.9 and flat["env.episode_length"] == 1024 and flat["method"] == "flddpg"
+    assert flat["offpolicy.gamma"] == 0.9 and flat["env.episode_length"] == 1024 and flat["method"] == "flddpg"
     assert len(flat) == sum(len(v) if isinstance(v, dict) else 1 for v in to_dict(Config()).values())

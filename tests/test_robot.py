@@ -304,8 +304,8 @@ def test_a_sweep_over_a_traced_robot_field_compiles_once(tmp_path):
     tiny = [
         "env.episode_length=16",
         "run.chunk_episodes=1",
-        "ddpg.batch_size=8",
-        "ddpg.hidden=16",
+        "offpolicy.batch_size=8",
+        "offpolicy.hidden=16",
         "run.checkpoint_every=0",
         "run.episodes=2",
         "fed.period=1",
@@ -345,9 +345,9 @@ def test_evaluate_a_run_under_another_robot_model(tmp_path):
         [
             "env.episode_length=16",
             "run.chunk_episodes=1",
-            "ddpg.batch_size=8",
-            "ddpg.hidden=16",
-            "ddpg.buffer_size=64",
+            "offpolicy.batch_size=8",
+            "offpolicy.hidden=16",
+            "offpolicy.buffer_size=64",
             "run.checkpoint_every=0",
             "run.episodes=1",
             "env.worlds=[train-0]",

@@ -21,9 +21,9 @@ from fedjax_nav.worlds import suites
 TINY = [
     "env.episode_length=16",
     "run.chunk_episodes=1",
-    "ddpg.batch_size=8",
-    "ddpg.hidden=8",
-    "ddpg.depth=1",
+    "offpolicy.batch_size=8",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
     "run.checkpoint_every=0",
     "run.episodes=2",
     "fed.period=1",

@@ -73,17 +73,17 @@ def test_no_source_but_rundir_spells_a_run_directory_name():
 
 
 def test_the_refusal_permits_only_the_changeable_fields_and_only_when_asked():
-    changed = ["run.episodes", "ddpg.gamma"]
+    changed = ["run.episodes", "offpolicy.gamma"]
     preflight.refuse_config_change(["run.episodes", "run.tensorboard"], True, "RUN/config.yaml", "x")
     preflight.refuse_config_change([], False, "RUN/config.yaml", "x")
     with pytest.raises(ConfigError) as without:
         preflight.refuse_config_change(changed, False, "RUN/config.yaml", "the saved one")
     head = str(without.value).split("; resuming")[0]
-    assert head == "RUN/config.yaml: differs from the saved one in run.episodes, ddpg.gamma", head
+    assert head == "RUN/config.yaml: differs from the saved one in run.episodes, offpolicy.gamma", head
     assert "--allow-config-change" in str(without.value)
     with pytest.raises(ConfigError) as allowed:
         preflight.refuse_config_change(changed, True, "RUN/config.yaml", "the saved one")
-    assert str(allowed.value).split("; resuming")[0].endswith(" in ddpg.gamma"), str(allowed.value)
+    assert str(allowed.value).split("; resuming")[0].endswith(" in offpolicy.gamma"), str(allowed.value)
 
 
 class _Checkpoints:
@@ -116,19 +116,22 @@ def test_both_resume_checks_refuse_through_the_one_function(calls, tmp_path, cap
     saved = Config()
     save_config(saved, tmp_path / rundir.CONFIG)
     # before loading anything: the saved config.yaml against the command line's
-    rc = cli.main(["train", "--resume", str(tmp_path), "--quiet", "--set", "ddpg.gamma=0.5"])
+    rc = cli.main(["train", "--resume", str(tmp_path), "--quiet", "--set", "offpolicy.gamma=0.5"])
     err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
     assert rc == 2 and len(err) == 1, err
     # inside train(): the config to resume with against the checkpoint's
-    asked = replace(saved, ddpg=replace(saved.ddpg, gamma=0.5))
+    asked = replace(saved, offpolicy=replace(saved.offpolicy, gamma=0.5))
     with pytest.raises(ConfigError) as inside:
         preflight.check_resumable(_Checkpoints(tmp_path, saved), asked, tmp_path, False)
     config = str(tmp_path / rundir.CONFIG)
-    assert calls == [(["ddpg.gamma"], False, config), (["ddpg.gamma"], False, config)]
+    assert calls == [(["offpolicy.gamma"], False, config), (["offpolicy.gamma"], False, config)]
     # one sentence: the same fields and the same hint, only what was compared differs
     cli_line, train_line = err[0].removeprefix("error: "), str(inside.value)
     assert cli_line.split(" differs from ")[0] == train_line.split(" differs from ")[0] == config + ":"
-    assert cli_line.split(" in ddpg.gamma")[1] == train_line.split(" in ddpg.gamma")[1], (cli_line, train_line)
+    assert cli_line.split(" in offpolicy.gamma")[1] == train_line.split(" in offpolicy.gamma")[1], (
+        cli_line,
+        train_line,
+    )
     assert str(tmp_path / rundir.CHECKPOINTS / "4") in train_line
 
 

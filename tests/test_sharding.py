@@ -68,10 +68,10 @@ def tiny_overrides(worlds: list[str]) -> list[str]:
     return [
         f"env.worlds=[{','.join(worlds)}]",
         "env.episode_length=32",
-        "ddpg.batch_size=8",
-        "ddpg.buffer_size=64",
-        "ddpg.hidden=16",
-        "ddpg.depth=2",
+        "offpolicy.batch_size=8",
+        "offpolicy.buffer_size=64",
+        "offpolicy.hidden=16",
+        "offpolicy.depth=2",
         f"run.seeds={SEEDS}",
         f"run.episodes={EPISODES}",
         "run.chunk_episodes=1",
@@ -380,7 +380,7 @@ def test_train_with_seeds_a_multiple_of_the_cores_spreads_them_by_default(tmp_pa
         # 2 robots in the smallest shipped room: each subprocess compiles its own program, and the
         # compile time grows with the robots' rooms (the default thesis rooms have up to 60 obstacles)
         "method: flddpg\nenv: {episode_length: 8, worlds: [train-0, train-0]}\n"
-        "ddpg: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
+        "offpolicy: {hidden: 8, batch_size: 4, buffer_size: 16}\n"
         "fed: {period: 1}\nrun: {episodes: 1, chunk_episodes: 1, checkpoint_every: 0}\n"
     )
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}

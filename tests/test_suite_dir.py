@@ -37,7 +37,7 @@ def constant_run(folder):
         {
             "method": "iddpg",
             "env": {"worlds": ["train-0"], "episode_length": STEPS},
-            "ddpg": {"hidden": 8, "depth": 1},
+            "offpolicy": {"hidden": 8, "depth": 1},
             "run": {"seeds": 1},
         }
     )

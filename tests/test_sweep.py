@@ -26,8 +26,8 @@ SWEEPS = sorted((ROOT / "configs" / "sweeps").glob("*.yaml"))
 TINY_SET = [
     "env.episode_length=16",
     "run.chunk_episodes=1",
-    "ddpg.batch_size=8",
-    "ddpg.hidden=16",
+    "offpolicy.batch_size=8",
+    "offpolicy.hidden=16",
     "run.checkpoint_every=0",
     "run.episodes=2",
     "fed.period=1",
@@ -43,7 +43,7 @@ def write_sweep(folder: Path, name: str = "tiny", **extra) -> Path:
         "base": str(ROOT / "configs" / "thesis" / "flddpg.yaml"),
         "seeds": 2,
         "set": TINY_SET,
-        "grid": {"fed.tau": [0.0, 0.5, 1.0], "ddpg.buffer_size": [16, 48]},
+        "grid": {"fed.tau": [0.0, 0.5, 1.0], "offpolicy.buffer_size": [16, 48]},
     }
     spec.update(extra)
     path = folder / f"{name}.yaml"
@@ -164,7 +164,7 @@ def test_shared_configs_are_trained_once_with_the_most_seeds():
         ({"grid": {"fed.tau": [1.5]}}, "fed.tau"),
         ({"grid": {"fed.nope": [1]}}, "nope"),
         ({"base": "missing.yaml", "grid": {"fed.tau": [0.5]}}, "missing.yaml"),
-        ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "ddpg.gamma"}}, "thesis.by"),
+        ({"grid": {"fed.tau": [0.5]}, "thesis": {"by": "offpolicy.gamma"}}, "thesis.by"),
         ({"grid": {"fed.tau": [0.5]}, "goal": {"walls": 0.9}}, "goal.walls is not a goal"),
         ({"grid": {"fed.tau": [0.5]}, "goal": {"arena": 1.5}}, "goal.arena must be a success rate"),
         ({"grid": {"fed.tau": [0.5]}, "goal": [0.9]}, "goal must be a mapping"),
@@ -201,7 +201,7 @@ def test_tables_hold_every_point_seed_episode_and_robot(tiny):
         "point",
         "label",
         "fed.tau",
-        "ddpg.buffer_size",
+        "offpolicy.buffer_size",
         "seed",
         "episode",
         "robot",
@@ -226,7 +226,7 @@ def test_each_grid_point_equals_the_config_trained_alone(tiny, tmp_path):
     """The point (tau 1, buffer 16) of the 12-row batch (buffers allocated at 48 rows) against
     `train` with its own config: same numbers to float32 round-off, same discrete outcomes."""
     p = tiny["sweep"].points[4]
-    assert p.values == {"fed.tau": 1.0, "ddpg.buffer_size": 16}
+    assert p.values == {"fed.tau": 1.0, "offpolicy.buffer_size": 16}
     train(p.cfg, tmp_path / "alone", progress=False)
     a, b = _run_metrics(tmp_path / "alone"), _run_metrics(tiny["out"] / "points" / p.id)
     assert list(a.columns) == list(b.columns) and len(a) == len(b)
@@ -303,7 +303,7 @@ def test_cli_sweep_prints_the_summary_and_resumes(tiny, capsys):
     path = tiny["folder"] / "tiny.yaml"
     assert cli.main(["sweep", str(path), "--out", str(out), "--quiet"]) == 0
     text = capsys.readouterr().out
-    assert "fed.tau=0.5, ddpg.buffer_size=48" in text and "all points were done" in text
+    assert "fed.tau=0.5, offpolicy.buffer_size=48" in text and "all points were done" in text
     assert cli.main(["sweep", str(tiny["folder"] / "nope.yaml"), "--quiet"]) == 2
     assert "nope.yaml" in capsys.readouterr().err
 
@@ -315,7 +315,7 @@ def test_stack_hparams_keeps_equal_fields_scalar():
     a = hparams_from_config(load_config(ROOT / "configs" / "thesis" / "flddpg.yaml"))
     b = a.replace_flat({"fed.tau": jax.numpy.float32(1.0)})
     hp = stack_hparams([a, b, b])
-    assert hp.fed.tau.shape == (3,) and hp.ddpg.gamma.shape == () and hp.ddpg.train_every.shape == ()
+    assert hp.fed.tau.shape == (3,) and hp.offpolicy.gamma.shape == () and hp.offpolicy.train_every.shape == ()
 
 
 def test_rows_pad_to_a_multiple_of_the_devices():
@@ -323,7 +323,7 @@ def test_rows_pad_to_a_multiple_of_the_devices():
     (g,) = sw.plan(sw.merge_jobs(tau.points), budget=2**40, devices=2)
     assert g.batch_rows == 4 and g.batched == {"fed.tau"}  # 3 points x 1 seed, padded to 4 rows
     seeds, hp, spans = sw.batch_rows(g.batches[0], g.batch_rows, g.batched)
-    assert list(seeds) == [0, 0, 0, 0] and hp.fed.tau.shape == (4,) and hp.ddpg.gamma.shape == ()
+    assert list(seeds) == [0, 0, 0, 0] and hp.fed.tau.shape == (4,) and hp.offpolicy.gamma.shape == ()
     assert [(lo, n) for _, lo, n in spans] == [(0, 1), (1, 1), (2, 1)]
 
 
@@ -493,7 +493,7 @@ def test_two_sweeps_sharing_a_folder_keep_their_own_tables(tiny, tmp_path):
     tables/<name>/ and leaves the first sweep's results.csv, summary.csv and sweep.yaml as they were."""
     out = tiny["out"]
     before = {f: (out / f).read_bytes() for f in ("results.csv", "summary.csv", "sweep.yaml")}
-    subset = {"fed.tau": [0.5], "ddpg.buffer_size": [16]}  # one point of the tiny sweep
+    subset = {"fed.tau": [0.5], "offpolicy.buffer_size": [16]}  # one point of the tiny sweep
     other = sf.load_sweep(write_sweep(tiny["folder"], "tiny-subset", grid=subset))
     msgs = []
     summ, stats = run_sweep(other, out, progress=False, echo=msgs.append)
@@ -508,9 +508,9 @@ def test_only_selects_points_by_their_values(tmp_path):
     read as --set reads them; a bad key, a bad value or no match is one error naming it."""
     sweep = sf.load_sweep(write_sweep(tmp_path))
     pick = sf.select(sweep, ["fed.tau=0.5"])
-    assert [p.cfg.ddpg.buffer_size for p in pick] == [16, 48] and {p.cfg.fed.tau for p in pick} == {0.5}
-    pick = sf.select(sweep, ["fed.tau=0.5", "fed.tau=1", "ddpg.buffer_size=48"])
-    assert [(p.cfg.fed.tau, p.cfg.ddpg.buffer_size) for p in pick] == [(0.5, 48), (1.0, 48)]
+    assert [p.cfg.offpolicy.buffer_size for p in pick] == [16, 48] and {p.cfg.fed.tau for p in pick} == {0.5}
+    pick = sf.select(sweep, ["fed.tau=0.5", "fed.tau=1", "offpolicy.buffer_size=48"])
+    assert [(p.cfg.fed.tau, p.cfg.offpolicy.buffer_size) for p in pick] == [(0.5, 48), (1.0, 48)]
     assert sf.select(sweep) == sweep.points
     for only, match in [
         (["fed.tau=0.25"], "matches none of the 6 points of tiny"),
@@ -527,14 +527,24 @@ def test_cli_sweep_only_trains_the_selected_points_and_tables_the_rest(tiny, tmp
     untrained and the tables are written for what is done."""
     out = tmp_path / "only"
     path = tiny["folder"] / "tiny.yaml"
-    argv = ["sweep", str(path), "--out", str(out), "--quiet", "--only", "fed.tau=0.5", "--only", "ddpg.buffer_size=16"]
+    argv = [
+        "sweep",
+        str(path),
+        "--out",
+        str(out),
+        "--quiet",
+        "--only",
+        "fed.tau=0.5",
+        "--only",
+        "offpolicy.buffer_size=16",
+    ]
     assert cli.main(argv) == 0
-    (p,) = [p for p in tiny["sweep"].points if p.cfg.fed.tau == 0.5 and p.cfg.ddpg.buffer_size == 16]
+    (p,) = [p for p in tiny["sweep"].points if p.cfg.fed.tau == 0.5 and p.cfg.offpolicy.buffer_size == 16]
     assert sorted(d.name for d in (out / "points").iterdir()) == [p.id]
     a, b = _run_metrics(out / "points" / p.id), _run_metrics(tiny["out"] / "points" / p.id)
     np.testing.assert_array_equal(a["goals"], b["goals"])
     np.testing.assert_allclose(a["reward"], b["reward"], rtol=1e-5, atol=1e-6)
-    assert "fed.tau=0.5, ddpg.buffer_size=16" in capsys.readouterr().out
+    assert "fed.tau=0.5, offpolicy.buffer_size=16" in capsys.readouterr().out
     assert cli.main(["sweep", str(path), "--out", str(out), "--quiet", "--only", "fed.tau=7"]) == 2
     err = capsys.readouterr().err.strip()
     assert "fed.tau" in err and len(err.splitlines()) == 1

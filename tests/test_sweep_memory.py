@@ -1,6 +1,6 @@
 """A sweep point's memory is train's estimate (`training.resources.memory_estimate`): the sweep's plan
 refuses a point exactly where `train` refuses its config, the per-update activations of a large
-`ddpg.batch_size` included (a small replay buffer does not hide them), and packs rows by the same
+`offpolicy.batch_size` included (a small replay buffer does not hide them), and packs rows by the same
 bytes. Nothing is allocated or compiled: the estimates come from shapes."""
 
 import importlib
@@ -21,7 +21,7 @@ from fedjax_nav.training.trainer import Trainer  # noqa: E402
 plan_module = importlib.import_module("fedjax_nav.training.sweep.plan")  # the package's `plan` is the function
 ROOT = Path(__file__).resolve().parents[1]
 # FLDDPG (5 networks), a buffer no larger than one huge batch: the activations dominate the estimate
-BIG_BATCH = ["ddpg.batch_size=100000", "ddpg.buffer_size=100000", "env.episode_length=16", "run.episodes=5"]
+BIG_BATCH = ["offpolicy.batch_size=100000", "offpolicy.buffer_size=100000", "env.episode_length=16", "run.episodes=5"]
 
 
 def config(seeds: int, extra=()):
@@ -37,7 +37,7 @@ def test_the_sweep_refuses_a_point_exactly_where_train_refuses_its_config(seeds)
     check_memory(Trainer(cfg), budget=est["total"])
     (g,) = sw.plan([job], budget=est["total"])
     assert g.batches == [[job]]
-    with pytest.raises(ResourceError, match="ddpg.batch_size"):
+    with pytest.raises(ResourceError, match="offpolicy.batch_size"):
         check_memory(Trainer(cfg), budget=est["total"] - 1)
     with pytest.raises(SweepError, match="memory budget"):
         sw.plan([job], budget=est["total"] - 1)

@@ -20,11 +20,11 @@ TINY = [
     "--set",
     "run.chunk_episodes=2",
     "--set",
-    "ddpg.batch_size=8",
+    "offpolicy.batch_size=8",
     "--set",
-    "ddpg.hidden=16",
+    "offpolicy.hidden=16",
     "--set",
-    "ddpg.buffer_size=64",
+    "offpolicy.buffer_size=64",
     "--set",
     "fed.period=1",
     "--set",
@@ -79,13 +79,13 @@ def test_train_tensorboard_logs_the_hyperparameters_and_the_config(tmp_path):
 
     out = tmp_path / "run"
     argv = ["train", "--config", "thesis/flddpg", "--out", str(out), "--quiet", "--tensorboard", *TINY]
-    assert cli.main([*argv, "--set", "ddpg.gamma=0.95"]) == 0
+    assert cli.main([*argv, "--set", "offpolicy.gamma=0.95"]) == 0
     acc = accumulator(out / "tensorboard")
     content = acc.PluginTagToContent("hparams")
     start = [plugin_data_pb2.HParamsPluginData.FromString(c) for t, c in content.items() if "session_start" in t]
     assert len(start) == 1
     hp = start[0].session_start_info.hparams
-    assert hp["ddpg.gamma"].number_value == pytest.approx(0.95) and hp["method"].string_value == "flddpg"
+    assert hp["offpolicy.gamma"].number_value == pytest.approx(0.95) and hp["method"].string_value == "flddpg"
     assert hp["env.worlds"].string_value == ",".join(["train-0"] * 5) and hp["run.tensorboard"].bool_value
     saved = yaml.safe_load((out / "config.yaml").read_text())
     assert len(hp) == sum(len(v) if isinstance(v, dict) else 1 for v in saved.values())

@@ -19,11 +19,11 @@ TINY = [
     "env.episode_length=8",
     "run.chunk_episodes=1",
     "run.checkpoint_every=1",
-    "ddpg.hidden=8",
-    "ddpg.depth=1",
-    "ddpg.batch_size=4",
-    "ddpg.buffer_size=32",
-    "ddpg.train_every=2",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
+    "offpolicy.batch_size=4",
+    "offpolicy.buffer_size=32",
+    "offpolicy.train_every=2",
     "fed.period=1",
 ]
 

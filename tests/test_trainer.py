@@ -37,16 +37,16 @@ ROBOTS = 5
 TINY = [
     f"env.episode_length={T}",
     "run.chunk_episodes=1",
-    "ddpg.batch_size=8",
-    "ddpg.buffer_size=64",
-    "ddpg.hidden=16",
+    "offpolicy.batch_size=8",
+    "offpolicy.buffer_size=64",
+    "offpolicy.hidden=16",
     "run.checkpoint_every=0",
 ]
 # Per config: extra overrides and the number of episodes (one, with a federated step in it).
 EXTRA = {
     "iddpg": ([], 1),
-    "seddpg": (["ddpg.buffer_size=128"], 1),  # T * robots = 80 rows fit without wrapping
-    "snddpg": (["ddpg.buffer_size=128"], 1),
+    "seddpg": (["offpolicy.buffer_size=128"], 1),  # T * robots = 80 rows fit without wrapping
+    "snddpg": (["offpolicy.buffer_size=128"], 1),
     "pwddpg": (["fed.period=1"], 1),
     "rwddpg": (["fed.period=1"], 1),
     "flsddpg": (["fed.period=1"], 1),
@@ -401,19 +401,30 @@ def test_cli_train_end_to_end_on_the_paper_config(tmp_path, capsys):
     """configs/paper/flddpg.yaml (6 rooms, E_update = 1), shrunk, through `fedjax-nav train`."""
     data = yaml.safe_load(PAPER.read_text())
     data["env"]["episode_length"] = T
-    data["ddpg"].update(hidden=16, batch_size=8, buffer_size=64)
+    data["offpolicy"].update(hidden=16, batch_size=8, buffer_size=64)
     data["run"].update(episodes=2, chunk_episodes=1, checkpoint_every=0)
     cfg_path = tmp_path / "tiny.yaml"
     cfg_path.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
     rc = cli.main(
-        ["train", "--config", str(cfg_path), "--out", str(out), "--seeds", "2", "--quiet", "--set", "ddpg.gamma=0.8"]
+        [
+            "train",
+            "--config",
+            str(cfg_path),
+            "--out",
+            str(out),
+            "--seeds",
+            "2",
+            "--quiet",
+            "--set",
+            "offpolicy.gamma=0.8",
+        ]
     )
     assert rc == 0, capsys.readouterr().err
     for f in ("config.yaml", "metrics.csv", "summary.json", "params.npz", "learning_curves.png"):
         assert (out / f).is_file() and (out / f).stat().st_size > 0, f
     cfg = load_config(out / "config.yaml")
-    assert cfg == load_config(cfg_path, ["run.seeds=2", "ddpg.gamma=0.8"])  # resolved, with --set and --seeds
+    assert cfg == load_config(cfg_path, ["run.seeds=2", "offpolicy.gamma=0.8"])  # resolved, with --set and --seeds
 
     df = pd.read_csv(out / "metrics.csv")
     for col in ("episode", "seed", "robot", "reward", "reached_goal", "goals", "collisions"):

@@ -25,10 +25,10 @@ TINY = [
     "run.episodes=1",
     "run.chunk_episodes=1",
     "run.checkpoint_every=0",
-    "ddpg.batch_size=8",
-    "ddpg.buffer_size=64",
-    "ddpg.hidden=8",
-    "ddpg.depth=1",
+    "offpolicy.batch_size=8",
+    "offpolicy.buffer_size=64",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
     "env.worlds=[train-0,train-0]",  # the smallest shipped room: compile time grows with obstacles
 ]
 T = 200  # the evaluation's time-out: long enough to reach a goal

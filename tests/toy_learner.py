@@ -29,14 +29,14 @@ TOY = learners.DDPG._replace(
 
 ROW = LearnerRow(
     "toy",
-    ("ddpg",),
+    ("offpolicy", "ddpg"),  # the replay settings, and DDPG's target mix and period
     on_policy=False,
     implementation=f"{__name__}:TOY",
     shared=("actor", "critic"),
     targets=("actor_targ", "critic_targ"),
-    actor_section="ddpg",
+    actor_section="offpolicy",
     export="heads",
-    update_every="ddpg.train_every",
-    steps_per_update=("ddpg.gradient_steps",),
+    update_every="offpolicy.train_every",
+    steps_per_update=("offpolicy.gradient_steps",),
 )
 assert ddpg.Actor is not None  # the actor the row's "heads" export reads

@@ -14,13 +14,13 @@ never looks at a learner's name (docs/learners.md, "The trainer's side").
 
 Every function is for ONE agent, ONE buffer or ONE environment, unbatched (the trainer adds agents,
 environments and seeds with vmap). `hp` is the trainer's HParams (config.traced: the traced config
-values, `hp.td3.tau`; each learner reads its own section and the shared off-policy ones of `hp.ddpg`); `g` is the
+values, `hp.td3.tau`; each learner reads its own section and the shared off-policy ones of `hp.offpolicy`); `g` is the
 global step, an unbatched i32 (the gates stay real conds); `rows` (static) is how many rows one
 buffer receives per step. `record` is a `Record` with a leading [rows] axis.
 
 Off-policy learners (DDPG, TD3, SAC) store 1-step rows in the replay buffer (`buffer.Transition`,
 `done` = terminated only, `next_obs` = the true last observation: a time-out bootstraps) and learn
-`gradient_steps` batches per update event. With `ddpg.n_step` = n > 1 the buffer also keeps the
+`gradient_steps` batches per update event. With `offpolicy.n_step` = n > 1 the buffer also keeps the
 truncation flags (`buffer.EpisodeRows`) and a batch is n-step rows (`offpolicy.nstep` over
 `buffer.sample_windows`): n rewards of one environment summed, cut at an episode's end or at the
 newest row, bootstrapped with gamma^k (`offpolicy.Batch.discount`). PPO (learner_ppo.py) keeps a
@@ -109,14 +109,14 @@ class OffPolicyNets:
     batch_size: int = struct.field(pytree_node=False)
     gradient_steps: int = struct.field(pytree_node=False)  # per update event, each on its own batch
     buffer_rows: int = struct.field(pytree_node=False)  # allocated rows (the capacity is traced up to it)
-    n_step: int = struct.field(pytree_node=False, default=1)  # steps per target (ddpg.n_step)
+    n_step: int = struct.field(pytree_node=False, default=1)  # steps per target (offpolicy.n_step)
 
 
 def _off_policy_nets(actor_cls):
     def make(v: dict) -> OffPolicyNets:
-        h, d, a = v["ddpg.hidden"], v["ddpg.depth"], v["ddpg.activation"]
-        rows = v["ddpg.buffer_alloc"] or v["ddpg.buffer_size"]
-        batch, steps, n = v["ddpg.batch_size"], v["ddpg.gradient_steps"], v["ddpg.n_step"]
+        h, d, a = v["offpolicy.hidden"], v["offpolicy.depth"], v["offpolicy.activation"]
+        rows = v["offpolicy.buffer_alloc"] or v["offpolicy.buffer_size"]
+        batch, steps, n = v["offpolicy.batch_size"], v["offpolicy.gradient_steps"], v["offpolicy.n_step"]
         return OffPolicyNets(actor_cls(h, d, a), Critic(h, d, a), batch, steps, rows, n)
 
     return make
@@ -124,7 +124,7 @@ def _off_policy_nets(actor_cls):
 
 def capacity(nets: OffPolicyNets, hp) -> jax.Array:
     """The active buffer capacity, never beyond the allocated rows (a swept value may be)."""
-    return jnp.minimum(hp.ddpg.buffer_size, nets.buffer_rows)
+    return jnp.minimum(hp.offpolicy.buffer_size, nets.buffer_rows)
 
 
 def _replay(nets, obs_size: int, rows: int) -> rb.Transition | rb.EpisodeRows:
@@ -158,8 +158,8 @@ def _ready(nets, g, rows: int):
 
 
 def _due_replay(nets, g, rows: int, hp):
-    """Every ddpg.train_every steps once the buffer holds a batch."""
-    return _ready(nets, g, rows) & ((g + 1) % hp.ddpg.train_every == 0)
+    """Every offpolicy.train_every steps once the buffer holds a batch."""
+    return _ready(nets, g, rows) & ((g + 1) % hp.offpolicy.train_every == 0)
 
 
 def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
@@ -171,13 +171,13 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
         count, cap, n = (g + 1) * rows, capacity(nets, hp), nets.gradient_steps
 
         def sample(k):
-            return sample_batch(nets, buf, k, count, cap, rows, hp.ddpg.gamma)
+            return sample_batch(nets, buf, k, count, cap, rows, hp.offpolicy.gamma)
 
         def one(state, k, i):
             state, losses = grad_step(nets, state, sample, k, hp, i)
             return state, {m: losses[m] for m in metrics}
 
-        index = ((g + 1) // hp.ddpg.train_every - 1) * n  # update events before this one x gradient steps
+        index = ((g + 1) // hp.offpolicy.train_every - 1) * n  # update events before this one x gradient steps
         if n == 1:
             return one(state, key, index)
         steps = (jax.random.split(key, n), index + jnp.arange(n, dtype=jnp.int32))
@@ -190,7 +190,7 @@ def _replay_update(grad_step: Callable, metrics: tuple[str, ...]) -> Callable:
 def _ddpg_step(nets, state, sample, key, hp, i):
     b = sample(key)
     batch = rb.Transition(b.obs, b.action, b.reward, b.next_obs, b.done)
-    return ddpg.update(nets, state, batch, b.discount, hp.ddpg.lr)  # discount: gamma per row, gamma^k n-step
+    return ddpg.update(nets, state, batch, b.discount, hp.offpolicy.lr)  # discount: gamma per row, gamma^k n-step
 
 
 def _split_batch(sample, key):
@@ -247,7 +247,7 @@ def _ddpg_targets_due(nets, g, rows: int, hp):
 
 
 def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
-    """An off-policy learner: `actor_cls` and the critic at the ddpg.* network sizes, replay rows
+    """An off-policy learner: `actor_cls` and the critic at the offpolicy.* network sizes, replay rows
     (`_replay`, `_store_replay`, `_due_replay`), `gradient_steps` calls of `grad_step` per update
     event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
     explore; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""

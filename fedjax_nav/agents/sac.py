@@ -14,7 +14,7 @@ The log-densities are in box units (tanh and affine Jacobians: distributions.py)
 target entropy -action_size is for the box [0, 1] x [-1, 1]. The alpha loss's gradient in log_alpha
 is alpha (H - target_entropy) with H the batch's entropy estimate: above the target the
 temperature falls. `hp` is the config's traced values (config.traced.HParams, read duck-typed):
-`hp.ddpg.lr` (actor and critics) and `hp.sac.alpha_lr`, `.tau`, `.target_entropy`; they and
+`hp.offpolicy.lr` (actor and critics) and `hp.sac.alpha_lr`, `.tau`, `.target_entropy`; they and
 `init`'s init_alpha are traced; Nets fix shapes.
 
 Federated: a round averages actor, critics and log_alpha (the temperature belongs with the policy
@@ -113,7 +113,9 @@ def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> tuple[
     alpha = jnp.exp(state.log_alpha)
     y = target(nets, state, batch, k_target)
 
-    critics, critic_opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.ddpg.lr)
+    critics, critic_opt, c_loss, q = critic_step(
+        nets.critic, state.critics, state.critic_opt, batch, y, hp.offpolicy.lr
+    )
 
     def actor_loss(p):
         a, logp = _sample(nets, p, batch.obs, k_actor)
@@ -121,7 +123,7 @@ def update(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> tuple[
         return jnp.mean(alpha * logp - q_pi), logp
 
     (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(state.actor)
-    actor, actor_opt = adam_step(ADAM, state.actor, a_grads, state.actor_opt, hp.ddpg.lr)
+    actor, actor_opt = adam_step(ADAM, state.actor, a_grads, state.actor_opt, hp.offpolicy.lr)
 
     t_loss, t_grad = jax.value_and_grad(alpha_loss)(state.log_alpha, logp, hp.sac.target_entropy)
     log_alpha, alpha_opt = adam_step(ADAM, state.log_alpha, t_grad, state.alpha_opt, hp.sac.alpha_lr)

@@ -13,7 +13,7 @@ Algorithm outline (the trainer's loop; rejax's td3.py in the same shape):
 half = the action box's half-widths (0.5, 1): noise is in units of the box, as the TD3 paper's is
 in units of max_action. The actor is networks.Actor, DDPG's, so `greedy` and export are DDPG's.
 Adam as `optax.scale_by_adam()` with the learning rate applied by hand. `hp` is the config's traced
-values (config.traced.HParams, read duck-typed: this layer does not import config): `hp.ddpg.lr`
+values (config.traced.HParams, read duck-typed: this layer does not import config): `hp.offpolicy.lr`
 (actor and critic) and `hp.td3.tau`, `.policy_noise`, `.noise_clip`; a sweep over them compiles
 once. The Nets fix shapes.
 
@@ -97,7 +97,7 @@ def target(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> jax.Ar
 def update_critic(nets: Nets, state: State, batch: Batch, key: jax.Array, hp) -> tuple[State, dict]:
     """One Adam step of both critics towards the smoothed twin target."""
     y = target(nets, state, batch, key, hp)
-    critics, opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.ddpg.lr)
+    critics, opt, c_loss, q = critic_step(nets.critic, state.critics, state.critic_opt, batch, y, hp.offpolicy.lr)
     return state.replace(critics=critics, critic_opt=opt), {"critic_loss": c_loss, "q": jnp.mean(q)}
 
 
@@ -110,7 +110,7 @@ def update_actor(nets: Nets, state: State, batch: Batch, hp) -> tuple[State, dic
         return -jnp.mean(q1)
 
     a_loss, grads = jax.value_and_grad(loss)(state.actor)
-    actor, opt = adam_step(ADAM, state.actor, grads, state.actor_opt, hp.ddpg.lr)
+    actor, opt = adam_step(ADAM, state.actor, grads, state.actor_opt, hp.offpolicy.lr)
     state = update_targets(state.replace(actor=actor, actor_opt=opt), hp.td3.tau)
     return state, {"actor_loss": a_loss}
 

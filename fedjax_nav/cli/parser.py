@@ -169,7 +169,9 @@ def add_train(sub) -> None:
         help="run directory (default runs/<method>-<time>-<microseconds>-<pid>); one "
         "holding results is refused unless --overwrite",
     )
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. ddpg.gamma=0.99")
+    p.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config field, e.g. offpolicy.gamma=0.99"
+    )
     p.add_argument("--resume", metavar="RUN_DIR", default=None, help="continue a run from its latest checkpoint")
     p.add_argument(
         "--from-checkpoint",

@@ -1,7 +1,8 @@
 """Configuration: frozen dataclasses that map one to one onto the YAML files.
 
-A config file has the `method`, the `learner` and the sections `env`, `ddpg`, `td3`, `sac`, `ppo`,
-`fed`, `run`, `robot`. Every field has
+A config file has the `method`, the `learner` and the sections `env`, `offpolicy` (the settings the
+replay learners ddpg, td3 and sac share), `ddpg`, `td3`, `sac`, `ppo`, `fed`, `run`, `robot`. An
+offpolicy field may still be written by its old name, `ddpg.<field>` (`LEGACY_ALIASES`). Every field has
 a default, a type, an allowed range or set, and a note of whether it is *traced* (a JAX value:
 it can be swept in one compiled program) or *static* (it fixes shapes or the program).
 
@@ -9,7 +10,7 @@ it can be swept in one compiled program) or *static* (it fixes shapes or the pro
 `HParams` (`fedjax_nav.training.hparams`), the sweeps' grouping and the docs are derived from it,
 as rejax declares it once on the field.
 
-    cfg = load_config("configs/thesis/flddpg.yaml", overrides=["ddpg.gamma=0.99"])
+    cfg = load_config("configs/thesis/flddpg.yaml", overrides=["offpolicy.gamma=0.99"])
 
 Unknown keys, wrong types and out-of-range values raise `ConfigError`, naming the file, the key
 and what is allowed.
@@ -30,6 +31,7 @@ from fedjax_nav.config.io import (
 from fedjax_nav.config.schema import (
     ATTACKS,
     LEARNERS,
+    LEGACY_ALIASES,
     METHODS,
     ROBOT_MODELS,
     ROBUST_AGGREGATORS,
@@ -42,21 +44,24 @@ from fedjax_nav.config.schema import (
     DDPGConfig,
     EnvConfig,
     FedConfig,
+    OffPolicyConfig,
     PPOConfig,
     RobotConfig,
     RunConfig,
     SACConfig,
     TD3Config,
+    canonical,
     field_info,
     get,
     traced_fields,
     values,
 )
-from fedjax_nav.config.validate import check, from_dict
+from fedjax_nav.config.validate import check, from_dict, resolve_aliases
 
 __all__ = [
     "ATTACKS",
     "LEARNERS",
+    "LEGACY_ALIASES",
     "METHODS",
     "ROBOT_MODELS",
     "ROBUST_AGGREGATORS",
@@ -69,12 +74,14 @@ __all__ = [
     "DDPGConfig",
     "EnvConfig",
     "FedConfig",
+    "OffPolicyConfig",
     "PPOConfig",
     "RobotConfig",
     "RunConfig",
     "SACConfig",
     "TD3Config",
     "apply_overrides",
+    "canonical",
     "check",
     "diff",
     "field_info",
@@ -84,6 +91,7 @@ __all__ = [
     "parse_yaml",
     "read_text",
     "read_yaml",
+    "resolve_aliases",
     "save_config",
     "to_dict",
     "traced_fields",

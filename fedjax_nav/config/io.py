@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from fedjax_nav.config.schema import SECTIONS, TOP_LEVEL, Config, ConfigError
+from fedjax_nav.config.schema import LEGACY_ALIASES, SECTIONS, TOP_LEVEL, Config, ConfigError, canonical
 from fedjax_nav.config.validate import from_dict
 from fedjax_nav.messages import shorten, show
 
@@ -34,16 +34,20 @@ def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: 
     """Apply `section.key=value` strings (values parsed as YAML) to a config dict (a copy).
 
     `src` names the overrides in errors about them; `base` names where `data` came from (its
-    file) in errors about `data` itself (not a mapping, a section that is not one): `src` if None."""
+    file) in errors about `data` itself (not a mapping, a section that is not one): `src` if None.
+
+    An offpolicy field's override replaces it under both its names (`offpolicy.gamma` and its old
+    name `ddpg.gamma`, schema.LEGACY_ALIASES) and is kept under the name it was given, which
+    `from_dict` then reads and names in its messages."""
     import copy
 
     base = src if base is None else base
     if not isinstance(data, dict):
-        raise ConfigError(f"{base}: the config must be a mapping with keys method, env, ddpg, fed, run")
+        raise ConfigError(f"{base}: the config must be a mapping with keys {', '.join((*TOP_LEVEL, *SECTIONS))}")
     data = copy.deepcopy(data)
     for item in overrides:
         if "=" not in item:
-            raise ConfigError(f"{src}: {show(item)} is not of the form key=value (e.g. ddpg.gamma=0.99)")
+            raise ConfigError(f"{src}: {show(item)} is not of the form key=value (e.g. offpolicy.gamma=0.99)")
         key, raw = item.split("=", 1)
         key = key.strip()
         label = shorten(key) if key.isprintable() else show(key)  # a key with a newline: its repr (one line)
@@ -58,8 +62,18 @@ def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: 
             data[parts[0]] = {}
         if not isinstance(data[parts[0]], dict):
             raise ConfigError(f"{base}: '{parts[0]}' must be a mapping, got {type(data[parts[0]]).__name__}")
+        for other in _spellings(key) - {key}:  # the field's other name: this override replaces it
+            section, name = other.split(".")
+            if isinstance(data.get(section), dict):
+                data[section].pop(name, None)
         data[parts[0]][parts[1]] = value
     return data
+
+
+def _spellings(dotted: str) -> set[str]:
+    """Every name of the field `dotted` means: itself, and its old name or its new one (LEGACY_ALIASES)."""
+    new = canonical(dotted)
+    return {new, *(old for old, n in LEGACY_ALIASES.items() if n == new)}
 
 
 def overridden_keys(overrides: list[str]) -> set[str]:
@@ -126,8 +140,8 @@ def parse_yaml(text: str, src: str) -> Any:
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
     """The config of a file or shipped name (`thesis/flddpg`), with `section.key=value` overrides.
 
-    An error in a value given by `--set` names `--set` and the key (`--set: ddpg.gamma: ...`, or
-    `--set ddpg.gamma: not valid YAML ...`); one in the file names the file; a cross-field error
+    An error in a value given by `--set` names `--set` and the key as given (`--set: offpolicy.gamma: ...`,
+    or `--set offpolicy.gamma: not valid YAML ...`); one in the file names the file; a cross-field error
     names the file "(with --set)"."""
     path = locate(path, "config") if path else None
     data = read_yaml(path) if path else {}

@@ -145,10 +145,12 @@ class EnvConfig:
 
 
 @dataclass(frozen=True)
-class DDPGConfig:
-    """DDPG's settings, and the off-policy settings TD3 and SAC share with it: the networks (hidden,
+class OffPolicyConfig:
+    """The off-policy settings that the replay learners (ddpg, td3, sac) share: the networks (hidden,
     depth, activation), the replay buffer (buffer_size, buffer_alloc, batch_size, gradient_steps),
-    gamma, n_step, lr (actor and critic) and train_every. rho, target_every and epsilon_* are DDPG's only."""
+    gamma, n_step, lr (actor and critic), train_every and the random warm-up. Every field was the
+    ddpg section's before this section held it; `ddpg.<field>` still reads as `offpolicy.<field>`
+    (LEGACY_ALIASES; docs/learners.md, "Configuration")."""
 
     hidden: int = _f(64, lo=1, hi=65536, doc="hidden width (static)")
     depth: int = _f(3, lo=1, hi=16, doc="hidden layers (static)")
@@ -159,16 +161,10 @@ class DDPGConfig:
     buffer_alloc: int = _f(0, lo=0, hi=100_000_000, doc="allocated rows (static); 0 = buffer_size. Sweeps set the max")
     batch_size: int = _f(512, lo=1, hi=1_000_000, doc="(static)")
     gamma: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="discount")
-    rho: float = _f(1.0, lo=0.0, hi=1.0, traced=True, doc="target mix: targ <- (1-rho) targ + rho net")
     lr: float = _f(1e-3, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate (actor and critic)")
     train_every: int = _f(
         5, lo=1, hi=2**31 - 1, traced=True, doc="T_train: steps between gradient steps (an int32: < 2^31)"
     )
-    target_every: int = _f(
-        5, lo=1, hi=2**31 - 1, traced=True, doc="T_target: steps between target updates (an int32: < 2^31)"
-    )
-    epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
-    epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
     random_steps: int = _f(
         0, lo=0, hi=2**31 - 1, traced=True, doc="off-policy warm-up: steps of uniform random actions, per environment"
     )
@@ -189,8 +185,21 @@ class DDPGConfig:
 
 
 @dataclass(frozen=True)
+class DDPGConfig:
+    """DDPG's own settings: the target mix and period, and its epsilon-greedy exploration; the rest
+    are the offpolicy section's (OffPolicyConfig)."""
+
+    rho: float = _f(1.0, lo=0.0, hi=1.0, traced=True, doc="target mix: targ <- (1-rho) targ + rho net")
+    target_every: int = _f(
+        5, lo=1, hi=2**31 - 1, traced=True, doc="T_target: steps between target updates (an int32: < 2^31)"
+    )
+    epsilon_start: float = _f(0.9, lo=0.0, hi=1.0, traced=True, doc="exploration probability at step 0")
+    epsilon_decay: float = _f(0.99997, lo=0.0, hi=1.0, traced=True, doc="epsilon *= decay every step")
+
+
+@dataclass(frozen=True)
 class TD3Config:
-    """TD3's own settings (Fujimoto et al. 2018); the rest are the ddpg section's (DDPGConfig)."""
+    """TD3's own settings (Fujimoto et al. 2018); the rest are the offpolicy section's (OffPolicyConfig)."""
 
     tau: float = _f(0.005, lo=0.0, hi=1.0, traced=True, doc="target mix on every actor step")
     policy_delay: int = _f(2, lo=1, hi=2**31 - 1, traced=True, doc="gradient steps per actor step (an int32)")
@@ -201,7 +210,7 @@ class TD3Config:
 
 @dataclass(frozen=True)
 class SACConfig:
-    """SAC's own settings (Haarnoja et al. 2018); the rest are the ddpg section's (DDPGConfig)."""
+    """SAC's own settings (Haarnoja et al. 2018); the rest are the offpolicy section's (OffPolicyConfig)."""
 
     tau: float = _f(0.005, lo=0.0, hi=1.0, traced=True, doc="critic target mix on every gradient step")
     alpha_lr: float = _f(3e-4, lo=0.0, hi=1.0, traced=True, doc="Adam learning rate of the temperature")
@@ -321,6 +330,7 @@ class Config:
     method: str = _f("flddpg", choices=METHODS, doc="the method (docs/decisions.md, Methods)")
     learner: str = _f("ddpg", choices=LEARNERS, doc="what each agent learns with (docs/learners.md) (static)")
     env: EnvConfig = field(default_factory=EnvConfig)
+    offpolicy: OffPolicyConfig = field(default_factory=OffPolicyConfig)
     ddpg: DDPGConfig = field(default_factory=DDPGConfig)
     td3: TD3Config = field(default_factory=TD3Config)
     sac: SACConfig = field(default_factory=SACConfig)
@@ -335,11 +345,12 @@ class Config:
 
     @property
     def buffer_rows(self) -> int:
-        return self.ddpg.buffer_alloc or self.ddpg.buffer_size
+        return self.offpolicy.buffer_alloc or self.offpolicy.buffer_size
 
 
 SECTIONS = {
     "env": EnvConfig,
+    "offpolicy": OffPolicyConfig,
     "ddpg": DDPGConfig,
     "td3": TD3Config,
     "sac": SACConfig,
@@ -350,6 +361,20 @@ SECTIONS = {
 }
 TOP_LEVEL = ("method", "learner")  # the fields outside the sections
 
+# The off-policy settings lived in the ddpg section until the offpolicy section held them. Each
+# keeps its old name `ddpg.<field>` as an alias wherever a field is written: a config file, a run's
+# saved config.yaml, `--set`, a sweep file's keys and `set:` (docs/learners.md, "Configuration").
+# Derived, not listed: every field of OffPolicyConfig was a field of the ddpg section, and no field
+# of DDPGConfig shares a name with one (tests/test_config.py). Point ids hash the old names
+# (config.sweepfile.point_id), so that every finished run keeps its id.
+LEGACY_ALIASES = {f"ddpg.{f.name}": f"offpolicy.{f.name}" for f in fields(OffPolicyConfig)}
+
+
+def canonical(dotted: str) -> str:
+    """The field a dotted name means: `offpolicy.<field>` for its old name `ddpg.<field>`
+    (LEGACY_ALIASES); any other name as it is."""
+    return LEGACY_ALIASES.get(dotted, dotted)
+
 
 def traced_fields() -> tuple[str, ...]:
     """Dotted names of the fields that are JAX values (sweepable in one compilation): exactly the
@@ -358,7 +383,9 @@ def traced_fields() -> tuple[str, ...]:
 
 
 def field_info(dotted: str) -> dataclasses.Field:
-    """The dataclass field behind a dotted name ("ddpg.gamma", or "method" / "learner")."""
+    """The dataclass field behind a dotted name ("offpolicy.gamma", its old name "ddpg.gamma", or
+    "method" / "learner")."""
+    dotted = canonical(dotted)
     if dotted in TOP_LEVEL:
         return {f.name: f for f in fields(Config)}[dotted]
     section, name = dotted.split(".")
@@ -366,7 +393,9 @@ def field_info(dotted: str) -> dataclasses.Field:
 
 
 def get(cfg: Config, dotted: str):
-    """The value of a dotted name ("ddpg.gamma", or "method" / "learner")."""
+    """The value of a dotted name ("offpolicy.gamma", its old name "ddpg.gamma", or "method" /
+    "learner")."""
+    dotted = canonical(dotted)
     if dotted in TOP_LEVEL:
         return getattr(cfg, dotted)
     section, name = dotted.split(".")
@@ -374,7 +403,7 @@ def get(cfg: Config, dotted: str):
 
 
 def values(cfg: Config) -> dict:
-    """Every field's value by dotted name ({"learner": "ddpg", "ddpg.hidden": 64, ...}): what a
+    """Every field's value by dotted name ({"learner": "ddpg", "offpolicy.hidden": 64, ...}): what a
     learner's `make_nets` reads its static sizes from (the agents layer does not import config)."""
     out = {name: getattr(cfg, name) for name in TOP_LEVEL}
     for s, cls in SECTIONS.items():

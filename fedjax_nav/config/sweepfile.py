@@ -40,21 +40,27 @@ from pathlib import Path
 from typing import Any
 
 from fedjax_nav.config import (
+    LEGACY_ALIASES,
     TOP_LEVEL,
     Config,
     ConfigError,
-    DDPGConfig,
     apply_overrides,
+    canonical,
     field_info,
     from_dict,
     get,
     read_yaml,
+    resolve_aliases,
     to_dict,
 )
 from fedjax_nav.messages import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
-BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "ddpg.buffer_alloc", "run.tensorboard")
+BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "offpolicy.buffer_alloc", "run.tensorboard")
+# The names point_id hashes a field under: its name when ids were first recorded. The offpolicy
+# fields were the ddpg section's then (schema.LEGACY_ALIASES), so that a finished run keeps its id
+# and its run directory `points/<id>/` (tests/test_point_ids.py).
+_ID_NAMES = {new: old for old, new in LEGACY_ALIASES.items()}
 # At most this many points per sweep file (the largest shipped one has 33): 300 x 300 took
 # minutes to read before anything was said, and would train for months here.
 MAX_POINTS = 10_000
@@ -96,7 +102,7 @@ class Sweep:
 
 
 def flat_config(cfg: Config) -> dict:
-    """{"method": ..., "ddpg.gamma": ..., ...}: every field of the config by its dotted name."""
+    """{"method": ..., "offpolicy.gamma": ..., ...}: every field of the config by its dotted name."""
     d = to_dict(cfg)
     out = {name: d.pop(name) for name in TOP_LEVEL}
     for s, sec in d.items():
@@ -107,10 +113,11 @@ def flat_config(cfg: Config) -> dict:
 def point_id(cfg: Config) -> str:
     """12 hex digits of a hash of the config's non-default fields (bookkeeping fields aside), so
     that a field added to the config later, with a default that keeps today's behaviour, leaves
-    every existing point's id unchanged."""
+    every existing point's id unchanged. A field moved to another section is hashed under its
+    old name (`_ID_NAMES`: `offpolicy.gamma` as `ddpg.gamma`), so that the move leaves ids unchanged too."""
     defaults = flat_config(Config())
     flat = {
-        k: v
+        _ID_NAMES.get(k, k): v
         for k, v in flat_config(cfg).items()
         if k not in BOOKKEEPING and (k == "method" or v != defaults.get(k, object()))
     }
@@ -174,6 +181,11 @@ def _combos(path: Path, spec: dict) -> list[dict]:
         )
     combos = [dict(zip(grid, vals)) for vals in itertools.product(*grid.values())] if grid else []
     combos += [dict(p) for p in extra_points]
+    for keys in [list(grid), *extra_points]:  # one field under its two names: one value would be lost
+        names: dict[str, Any] = {}
+        for k in keys:
+            if (first := names.setdefault(canonical(str(k)), k)) != k:
+                raise SweepError(f"{path}: {first} and {k} are one field (its old and new name); sweep it under one")
     return combos or [{}]
 
 
@@ -192,9 +204,10 @@ def _point(path: Path, values: dict, base, before: list[str], after: list[str], 
     try:
         data = apply_overrides(data, before + grid_over + after, src)
         if buffer_scale != 1.0:
-            dd = data.setdefault("ddpg", {})
-            size = dd.get("buffer_size", DDPGConfig().buffer_size)
-            dd["buffer_size"] = max(int(dd.get("batch_size", DDPGConfig().batch_size)), round(size * buffer_scale))
+            off, default = resolve_aliases(data, src)[0].get("offpolicy") or {}, Config().offpolicy
+            size = off.get("buffer_size", default.buffer_size)
+            scaled = max(int(off.get("batch_size", default.batch_size)), round(size * buffer_scale))
+            data = apply_overrides(data, [f"offpolicy.buffer_size={scaled}"], src)
         cfg = from_dict(data, src)
     except ConfigError as e:
         raise SweepError(str(e)) from None

@@ -2,9 +2,9 @@
 declaration of sweepability, `fedjax_nav.config`): one flax.struct dataclass per config section
 with traced fields, and `HParams`, a struct of those section structs.
 
-    hp = hparams_from_config(cfg)      # HParams(env=EnvTraced(dt=f32[], ...), ddpg=DDPGTraced(...), ...)
+    hp = hparams_from_config(cfg)      # HParams(env=EnvTraced(dt=f32[], ...), offpolicy=OffPolicyTraced(...), ...)
     hp.td3.tau, hp.env.v_max, hp.fed.tau
-    hp.to_flat()                       # {"ddpg.gamma": f32[], ...}: sweeps stack and compare by name
+    hp.to_flat()                       # {"offpolicy.gamma": f32[], ...}: sweeps stack and compare by name
     HParams.from_flat(flat)            # back
     HParams().replace_flat({"td3.tau": 0.25})   # the config's defaults (Python scalars), one value changed
     hp | {"fed.tau": 1.0}              # the same as replace_flat
@@ -46,11 +46,11 @@ def _section_struct(cls) -> type | None:
 
 
 SECTION_STRUCTS: dict[str, type] = {s: c for s, cls in SECTIONS.items() if (c := _section_struct(cls)) is not None}
-globals().update({c.__name__: c for c in SECTION_STRUCTS.values()})  # picklable by name: EnvTraced, DDPGTraced...
+globals().update({c.__name__: c for c in SECTION_STRUCTS.values()})  # picklable by name: EnvTraced, OffPolicyTraced...
 
 
 def _flat(self) -> dict[str, Any]:
-    """Every leaf by dotted config name ({"ddpg.gamma": ..., ...}), in the table's order."""
+    """Every leaf by dotted config name ({"offpolicy.gamma": ..., ...}), in the table's order."""
     return {f"{s}.{k}": getattr(getattr(self, s), k) for s, c in SECTION_STRUCTS.items() for k in _names(c)}
 
 

@@ -10,11 +10,14 @@ from dataclasses import fields
 from typing import Any
 
 from fedjax_nav.config.schema import (
+    LEGACY_ALIASES,
     ROOM_FAMILIES,
     SECTIONS,
     TOP_LEVEL,
     Config,
     ConfigError,
+    canonical,
+    field_info,
     robot_problem,
 )
 from fedjax_nav.learner_table import get as learner_row
@@ -94,19 +97,67 @@ def _number(text: str) -> Any:
     return text
 
 
-def _build(cls, data: Any, src: str, prefix: str, where):
+def _build(cls, data: Any, src: str, prefix: str, where, written=None):
+    """A section's dataclass from its mapping; `written` (a dotted name -> the name as the user
+    wrote it: an alias, `resolve_aliases`) names each field in messages as it was written."""
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: '{prefix}' must be a mapping, got {type(data).__name__}")
     known = {f.name: f for f in fields(cls)}
+
+    def name(k: str) -> str:  # the field as the user wrote it
+        return (written or {}).get(f"{prefix}.{k}", f"{prefix}.{k}")
+
     for k in data:
         if k not in known:
             dotted = f"{prefix}.{k}"
+            old = [a.split(".", 1)[1] for a in LEGACY_ALIASES if a.startswith(f"{prefix}.")]
+            also = f"; and the old names of the offpolicy fields: {', '.join(old)}" if old else ""
             raise ConfigError(
-                f"{where(dotted)}: unknown key {show(dotted)} (allowed in '{prefix}': {', '.join(known)})"
+                f"{where(dotted)}: unknown key {show(dotted)} (allowed in '{prefix}': {', '.join(known)}{also})"
             )
-    return cls(**{k: _coerce(v, known[k], f"{where(f'{prefix}.{k}')}: {prefix}.{k}") for k, v in data.items()})
+    return cls(**{k: _coerce(v, known[k], f"{where(f'{prefix}.{k}')}: {name(k)}") for k, v in data.items()})
+
+
+def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, dict]:
+    """A config mapping with each old name `ddpg.<field>` of an offpolicy field (schema.LEGACY_ALIASES)
+    moved to `offpolicy.<field>` (a copy; `data` is left as it is), and {"offpolicy.<field>": the name
+    as written} of the fields moved, so that messages name what the user wrote. A field given under
+    both names with different values is one ConfigError naming both (`where(dotted)`: where a
+    value came from, `src` by default). Anything that is not a mapping comes back unchanged, for
+    `from_dict` to refuse."""
+    where = where or (lambda dotted: src)
+    if not isinstance(data, dict):
+        return data, {}
+
+    def given(dotted: str) -> bool:
+        section, key = dotted.split(".")
+        return isinstance(data.get(section), dict) and key in data[section]
+
+    moved = {old: new for old, new in LEGACY_ALIASES.items() if given(old)}
+    if not moved:
+        return data, {}
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    written = {}
+    for old, new in moved.items():
+        (s_old, k_old), (s_new, k_new) = old.split("."), new.split(".")
+        value = out[s_old].pop(k_old)
+        if out.get(s_new) is None:
+            out[s_new] = {}
+        target = out[s_new]
+        if not isinstance(target, dict):
+            raise ConfigError(f"{src}: '{s_new}' must be a mapping, got {type(target).__name__}")
+        if k_new not in target:
+            target[k_new], written[new] = value, old
+            continue
+        f = field_info(new)
+        if _coerce(value, f, f"{where(old)}: {old}") != _coerce(target[k_new], f, f"{where(new)}: {new}"):
+            raise ConfigError(
+                f"{src}: {old} ({show(value)}) and {new} ({show(target[k_new])}) are one field ({old} is the "
+                f"old name of {new}) given two values; give {new} only"
+            )
+    return out, written
 
 
 def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = ()) -> Config:
@@ -117,16 +168,17 @@ def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (
     `src (with --set)`."""
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: a config must be a mapping with keys {', '.join((*TOP_LEVEL, *SECTIONS))}")
-    overridden = set(overridden)
+    overridden = {canonical(k) for k in overridden}
 
     def where(dotted: str) -> str:
-        return "--set" if dotted in overridden else src
+        return "--set" if canonical(dotted) in overridden else src
 
     allowed = {*TOP_LEVEL, *SECTIONS}
     for k in data:
         if k not in allowed:
             raise ConfigError(f"{src}: unknown key {show(str(k))} (allowed: {', '.join(sorted(allowed))})")
-    kwargs = {s: _build(cls, data.get(s), src, s, where) for s, cls in SECTIONS.items()}
+    data, written = resolve_aliases(data, src, where)
+    kwargs = {s: _build(cls, data.get(s), src, s, where, written) for s, cls in SECTIONS.items()}
     top = {f.name: f for f in fields(Config)}
     for name in TOP_LEVEL:
         if name in data:
@@ -170,14 +222,14 @@ def check(cfg: Config, src: str = "<config>") -> None:
     """Cross-field checks (each names the fields involved)."""
     if msg := robot_problem(cfg.robot, cfg.env.num_beams):
         raise ConfigError(f"{src}: {msg}")
-    d = cfg.ddpg
+    d = cfg.offpolicy
     if d.buffer_alloc and d.buffer_alloc < d.buffer_size:
         raise ConfigError(
-            f"{src}: ddpg.buffer_alloc ({d.buffer_alloc}) must be 0 or >= ddpg.buffer_size ({d.buffer_size})"
+            f"{src}: offpolicy.buffer_alloc ({d.buffer_alloc}) must be 0 or >= offpolicy.buffer_size ({d.buffer_size})"
         )
     if d.buffer_size < d.batch_size:
         raise ConfigError(
-            f"{src}: ddpg.buffer_size ({d.buffer_size}) is smaller than ddpg.batch_size ({d.batch_size}); "
+            f"{src}: offpolicy.buffer_size ({d.buffer_size}) is smaller than offpolicy.batch_size ({d.batch_size}); "
             "allowed: buffer_size >= batch_size"
         )
     # IDDPG, SEDDPG, SNDDPG have no federated step: their fed.period is unused, not inconsistent.
@@ -242,25 +294,25 @@ def _check_learner(cfg: Config, src: str) -> None:
 
 
 def _check_n_step(cfg: Config, src: str, method, on_policy: bool) -> None:
-    """ddpg.n_step: an off-policy learner's, and a window of n steps of every environment writing
+    """offpolicy.n_step: an off-policy learner's, and a window of n steps of every environment writing
     into one buffer must fit in it."""
-    d = cfg.ddpg
+    d = cfg.offpolicy
     if d.random_steps and on_policy:  # PPO learns from its own policy's actions
         raise ConfigError(
-            f"{src}: ddpg.random_steps ({d.random_steps}) needs an off-policy learner: {', '.join(off_policy())}"
+            f"{src}: offpolicy.random_steps ({d.random_steps}) needs an off-policy learner: {', '.join(off_policy())}"
         )
     if d.n_step == 1:
         return
     if on_policy:
         raise ConfigError(
-            f"{src}: ddpg.n_step ({d.n_step}) needs an off-policy learner: {', '.join(off_policy())} "
+            f"{src}: offpolicy.n_step ({d.n_step}) needs an off-policy learner: {', '.join(off_policy())} "
             f"(learner is {cfg.learner!r})"
         )
     rows = cfg.env.envs_per_robot * (cfg.num_robots if method.shared_buffer else 1)
     if d.n_step * rows > d.buffer_size:
         raise ConfigError(
-            f"{src}: ddpg.n_step ({d.n_step}) x rows written per step into one buffer ({rows}) is more than "
-            f"ddpg.buffer_size ({d.buffer_size}): a window of n steps must fit in the buffer"
+            f"{src}: offpolicy.n_step ({d.n_step}) x rows written per step into one buffer ({rows}) is more than "
+            f"offpolicy.buffer_size ({d.buffer_size}): a window of n steps must fit in the buffer"
         )
 
 

@@ -126,6 +126,7 @@ def load_run(run_dir: str | Path) -> RunAgents:
     from fedjax_nav import methods
     from fedjax_nav.config import ConfigError
     from fedjax_nav.env import NavEnv as _Env
+    from fedjax_nav.learner_table import get as learner_row
 
     try:
         run_dir = rundir.run_dir(run_dir, (rundir.CONFIG, rundir.PARAMS))
@@ -139,13 +140,14 @@ def load_run(run_dir: str | Path) -> RunAgents:
     method = methods.get(cfg.method)
     n_robots = cfg.num_robots
     n_nets = 1 if method.shared_network else n_robots
-    d = cfg.ddpg
+    section = learner_row(cfg.learner).actor_section  # where the actor's hidden and depth are
+    d = getattr(cfg, section)
     obs_size = _Env(cfg.env.num_beams).obs_size
     exp_flat = _flat_shapes(_expected_actor(cfg, obs_size))
     if set(exp_flat) != set(got_shapes):
         raise EvalError(
             f"{params_file}: actor arrays {sorted(got_shapes)} do not match the network of "
-            f"config.yaml (ddpg.hidden={d.hidden}, depth={d.depth}): expected {sorted(exp_flat)}"
+            f"config.yaml ({section}.hidden={d.hidden}, depth={d.depth}): expected {sorted(exp_flat)}"
         )
     lead = None
     for k, shape in exp_flat.items():
@@ -154,7 +156,7 @@ def load_run(run_dir: str | Path) -> RunAgents:
             raise EvalError(
                 f"{params_file}: actor/{k} has shape {list(got)}, expected "
                 f"[seeds, {n_nets}, {', '.join(map(str, shape))}] for {cfg.method} with "
-                f"ddpg.hidden={d.hidden}, depth={d.depth}"
+                f"{section}.hidden={d.hidden}, depth={d.depth}"
             )
         lead = got[:2] if lead is None else lead
         if got[:2] != lead:

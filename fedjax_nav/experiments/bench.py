@@ -170,7 +170,7 @@ def _learner_label(cfg) -> str:
 
 def update_events(cfg, episodes: int) -> int:
     """Update events of one network in `episodes` episodes (PPO: one per rollout; off-policy: one
-    every ddpg.train_every steps)."""
+    every offpolicy.train_every steps)."""
     from fedjax_nav.config import get
     from fedjax_nav.learner_table import get as learner_row
 

@@ -15,8 +15,8 @@ PROCEDURAL = ("env.rooms=procedural", "env.room_families=[mixture]")
 LEARNER_ROWS = (
     ("ppo", ("env.envs_per_robot=256", *PROCEDURAL)),
     ("ppo", ("env.envs_per_robot=256", "ppo.recurrent=gru", *PROCEDURAL)),
-    ("sac", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
-    ("td3", ("env.envs_per_robot=64", "ddpg.buffer_size=100000", *PROCEDURAL)),
+    ("sac", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
+    ("td3", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
 )
 
 

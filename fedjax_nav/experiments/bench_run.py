@@ -23,7 +23,7 @@ def main(args) -> int:
     if what in ("train", "all"):
         ceiling = matmul_ceiling(512 if quick else 2048)
         rows.append({"bench": "ceiling", "gflops": ceiling})
-        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
+        over = ("env.episode_length=64", "offpolicy.batch_size=64") if quick else ()
         rows += bench_train(seeds=(1,), ceiling=ceiling, overrides=over)
         if not quick:  # right after it: the same run drawing a fresh procedural room per robot and episode
             proc = ("env.rooms=procedural", "env.room_families=[mixture]")
@@ -40,7 +40,7 @@ def main(args) -> int:
         rows += bench_learners(small, env_batch=64 if quick else 1280, ceiling=ceiling, brax=not quick)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
     if what in ("sweep", "all"):
-        over = ("env.episode_length=64", "ddpg.batch_size=64") if quick else ()
+        over = ("env.episode_length=64", "offpolicy.batch_size=64") if quick else ()
         rows += bench_sweep(points=2 if quick else 4, episodes=1 if quick else 2, overrides=over)
     table = format_rows(rows)
     print(table)

@@ -104,7 +104,7 @@ SCALES = {
             "env.episode_length=64",
             "run.chunk_episodes=5",
             "run.checkpoint_every=0",
-            "ddpg.batch_size=32",
+            "offpolicy.batch_size=32",
             "env.worlds=[train-0,train-0,train-0,train-0,train-0]",
         ),
         0.02,

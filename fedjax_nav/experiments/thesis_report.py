@@ -123,17 +123,17 @@ def table2(sweeps_dir: Path = SWEEP_DIR) -> pd.DataFrame:
         (
             "buffer |D| (IDDPG, SEDDPG, SNDDPG, FLDDPG)",
             "50 000 each",
-            ", ".join(f"{thesis[m].ddpg.buffer_size:,}".replace(",", " ") for m in thesis),
+            ", ".join(f"{thesis[m].offpolicy.buffer_size:,}".replace(",", " ") for m in thesis),
         ),
-        ("T_train", paper.ddpg.train_every, t.ddpg.train_every),
+        ("T_train", paper.offpolicy.train_every, t.offpolicy.train_every),
         ("T_target", paper.ddpg.target_every, t.ddpg.target_every),
         ("epsilon start", paper.ddpg.epsilon_start, t.ddpg.epsilon_start),
         ("epsilon decay", paper.ddpg.epsilon_decay, t.ddpg.epsilon_decay),
-        ("learning rate", paper.ddpg.lr, t.ddpg.lr),
-        ("gamma", paper.ddpg.gamma, t.ddpg.gamma),
+        ("learning rate", paper.offpolicy.lr, t.offpolicy.lr),
+        ("gamma", paper.offpolicy.gamma, t.offpolicy.gamma),
         ("rho", paper.ddpg.rho, t.ddpg.rho),
-        ("batch |B|", paper.ddpg.batch_size, t.ddpg.batch_size),
-        ("hidden width", paper.ddpg.hidden, t.ddpg.hidden),
+        ("batch |B|", paper.offpolicy.batch_size, t.offpolicy.batch_size),
+        ("hidden width", paper.offpolicy.hidden, t.offpolicy.hidden),
         ("v_max (m/s)", paper.env.v_max, t.env.v_max),
         ("collision reward", paper.env.reward_collision, t.env.reward_collision),
         ("federated period", f"{paper.fed.period} {paper.fed.period_unit}", f"{t.fed.period} {t.fed.period_unit}"),
@@ -210,6 +210,7 @@ def draw_figures(sweeps: dict, out: Path, evals: pd.DataFrame, tables: dict) -> 
     if len(r):
         paths.append(
             tf.learning_figure(
+                # results.csv names a swept field as the sweep file writes it: buffer_snddpg.yaml's old name
                 _runs(r, "ddpg.buffer_size", lambda v: f"|D| = {v}"),
                 out / "fig11_snddpg_buffer.png",
                 title="Fig. 11: SNDDPG, replay buffer size",

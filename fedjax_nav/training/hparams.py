@@ -1,7 +1,7 @@
 """HParams: the traced values of a config, typed (`fedjax_nav.config.traced`: one struct per
 section, generated from the `traced=True` fields), and their stacking for sweeps.
 
-    hp = hparams_from_config(cfg)     # hp.ddpg.gamma: f32[], hp.env.v_max: f32[], ...
+    hp = hparams_from_config(cfg)     # hp.offpolicy.gamma: f32[], hp.env.v_max: f32[], ...
     hp.fed.tau
 
 Each leaf is a scalar, or [rows] when a sweep batches it; `hp_axes` gives the matching vmap axes.

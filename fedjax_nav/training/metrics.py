@@ -107,8 +107,8 @@ def summarize(df: pd.DataFrame, cfg: Config, facts: Facts, last: int = 25) -> di
         facts.method,
         cfg.run.episodes,
         cfg.env.episode_length,
-        cfg.ddpg.train_every,
-        cfg.ddpg.batch_size,
+        cfg.offpolicy.train_every,
+        cfg.offpolicy.batch_size,
         cfg.fed.period_unit,
         cfg.fed.period,
     )

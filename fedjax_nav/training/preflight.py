@@ -146,12 +146,13 @@ def plan_resume(ckpt, cfg: Config, out: Path, allow_config_change: bool, asked: 
 
 
 def to_dict_flat(cfg) -> dict:
-    """{"ddpg.gamma": 0.9, ...} of a Config or of its to_dict mapping."""
-    from fedjax_nav.config import to_dict
+    """{"offpolicy.gamma": 0.9, ...} of a Config or of its to_dict mapping (an offpolicy field saved
+    under its old name, `ddpg.gamma`, by its name now: config.canonical)."""
+    from fedjax_nav.config import canonical, to_dict
 
     d = cfg if isinstance(cfg, dict) else to_dict(cfg)
     return {
-        f"{s}.{k}" if isinstance(sec, dict) else s: v
+        canonical(f"{s}.{k}") if isinstance(sec, dict) else s: v
         for s, sec in d.items()
         for k, v in (sec.items() if isinstance(sec, dict) else [(s, sec)])
     }

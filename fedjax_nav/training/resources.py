@@ -51,7 +51,7 @@ def memory_estimate(trainer: Trainer) -> dict[str, int]:
     the state parts times STATE_BYTES_FACTOR (a chunk's peak: donated state, outputs, copies)
     plus the others."""
     cfg = trainer.cfg
-    d = cfg.ddpg
+    d = cfg.offpolicy
     hp = hparams_from_config(cfg)
     shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
     S = cfg.run.seeds
@@ -81,12 +81,12 @@ def check_memory(trainer: Trainer, budget: int | None = None, src: str = "config
     if over is None:
         return est
     cfg = trainer.cfg
-    buffer_field = "ddpg.buffer_alloc" if cfg.ddpg.buffer_alloc else "ddpg.buffer_size"
+    buffer_field = "offpolicy.buffer_alloc" if cfg.offpolicy.buffer_alloc else "offpolicy.buffer_size"
     fields = {
         "buffers": buffer_field,
-        "networks": "ddpg.hidden",
+        "networks": "offpolicy.hidden",
         "env": "run.seeds",
-        "activations": "ddpg.batch_size",
+        "activations": "offpolicy.batch_size",
         "metrics": "run.episodes",
         "worlds": "env.worlds",
     }

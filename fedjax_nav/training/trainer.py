@@ -258,11 +258,11 @@ class Trainer:
         L = self.learner
         key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
         actions, extra, memory = self._explore(state, k_act, hp)
-        if not L.on_policy:  # the warm-up (ddpg.random_steps): its own key, the other streams unchanged
+        if not L.on_policy:  # the warm-up (offpolicy.random_steps): its own key, the other streams unchanged
             warm = jax.random.uniform(
                 jax.random.fold_in(k_act, 1), actions.shape, minval=ACTION_LOW, maxval=ACTION_HIGH
             )
-            actions = jnp.where(g < hp.ddpg.random_steps, warm, actions)
+            actions = jnp.where(g < hp.offpolicy.random_steps, warm, actions)
         env_keys = jax.random.split(k_env, self.num_envs)
         obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
             env_keys, state.env_state, actions, env_params

@@ -52,7 +52,7 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
     for key, js in groups.items():
         alloc = max(j.cfg.buffer_rows for j in js)
         rep = js[0].cfg
-        rep = replace(rep, ddpg=replace(rep.ddpg, buffer_alloc=alloc))
+        rep = replace(rep, offpolicy=replace(rep.offpolicy, buffer_alloc=alloc))
         trainer = Trainer(rep)
         per_row, once = point_bytes(trainer)
         cap = max(budget - once, 0) // max(per_row, 1)  # 0: not even one row fits (a single-seed point is checked too)
