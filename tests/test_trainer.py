@@ -84,16 +84,9 @@ class Run:
         self.trainer = Trainer(cfg)
         self.hp = hparams_from_config(cfg)
         self.traces = []
-        if count_traces:
-            # Count traces of the real `compiled_chunk`: it jits `self.chunk`, which now counts.
-            plain = self.trainer.chunk
-
-            def counted(*args, **kwargs):
-                self.traces.append(1)
-                return plain(*args, **kwargs)
-
-            self.trainer.chunk = counted
-        self.chunk = self.trainer.compiled_chunk()
+        # Count the traces of the real `compiled_chunk` (its `on_trace` hook runs at each trace).
+        on_trace = (lambda: self.traces.append(1)) if count_traces else None
+        self.chunk = self.trainer.compiled_chunk(on_trace=on_trace)
         self.states, self.metrics = train_episodes(self.trainer, self.chunk, self.hp, seeds, cfg.run.episodes)
 
 
