@@ -318,8 +318,10 @@ def add_export(sub) -> None:
 
 
 def add_worlds(sub) -> None:
-    """`worlds generate`: one procedural room written as a world file."""
-    p = sub.add_parser("worlds", help="procedural rooms: write generated world files (docs/generator.md)")
+    """`worlds generate`: one procedural room written as a world file; `worlds import`: a ROS map."""
+    p = sub.add_parser(
+        "worlds", help="write world files: procedural rooms (docs/generator.md), ROS maps (docs/worlds.md)"
+    )
     wsub = p.add_subparsers(dest="worlds_command", required=True)
     g = wsub.add_parser(
         "generate",
@@ -345,6 +347,31 @@ def add_worlds(sub) -> None:
         help="override a RoomSpec field, e.g. cylinders_max=4 (repeatable)",
     )
     g.set_defaults(func=_worlds)
+    _add_worlds_import(wsub)
+
+
+def _add_worlds_import(wsub) -> None:
+    """`worlds import`: a ROS map_server map written as a world file (docs/worlds.md)."""
+    i = wsub.add_parser(
+        "import",
+        help="turn a ROS map_server map (YAML + PGM/PNG) into a world file",
+        description="Turn a ROS map_server map (its YAML and image) into a world file: occupied and unknown "
+        "cells become boxes, starts and goals are drawn in the free space (docs/worlds.md, "
+        "'Maps you already have'). `worlds.load` and every --world take the map's YAML directly too.",
+    )
+    i.add_argument("map", help="the map's YAML file (keys image, resolution, origin, negate, *_thresh)")
+    i.add_argument("--out", required=True, help="output world file (.json, or .yaml / .yml)")
+    i.add_argument("--starts", type=positive_int, default=None, metavar="N", help="draw N starts (default 1)")
+    i.add_argument("--goals", type=positive_int, default=None, metavar="N", help="draw N goals (default 1)")
+    i.add_argument("--seed", default=None, help="seed of the draw, an integer in [0, 2**32) (default 0)")
+    i.add_argument(
+        "--cell",
+        type=float,
+        default=None,
+        metavar="M",
+        help="coarser cells of M m (a whole multiple of the map's resolution; occupied where any pixel is)",
+    )
+    i.set_defaults(func=_worlds)
 
 
 def add_configs(sub) -> None:

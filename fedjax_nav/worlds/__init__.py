@@ -2,7 +2,8 @@
 (`rooms`, `procedural`, the families' modules), held-out suites and saved rooms (`suites`).
 
 A world file (JSON or YAML, docs/worlds.md) has `size`, optional `boxes`, `segments`, `circles`,
-and at least one of `starts` and `goals`; `load(name_or_path)` reads a shipped name or a file.
+and at least one of `starts` and `goals`; `load(name_or_path)` reads a shipped name or a file,
+also a ROS map_server map's YAML (`rosmap`, `grid`: its occupied cells become boxes).
 This module only re-exports: the package's own modules import from the module that defines a name.
 """
 
@@ -42,6 +43,7 @@ from fedjax_nav.worlds.world import (  # noqa: F401
     load,
     load_many,
     load_with_meta,
+    map_spec,
     pad,
     point_segment_distance_np,
     resolve,

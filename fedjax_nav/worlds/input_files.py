@@ -56,8 +56,8 @@ def _not_regular(mode: int, kind: str) -> InputError:
     return InputError(f"is {what}, not a regular file; a {kind} file must be a regular file")
 
 
-def read_text(path: str | Path, kind: str, max_bytes: int, formats: str = "YAML") -> str:
-    """The UTF-8 text of the regular file `path`, at most `max_bytes` bytes long.
+def read_bytes(path: str | Path, kind: str, max_bytes: int) -> bytes:
+    """The content of the regular file `path`, at most `max_bytes` bytes long.
 
     Never blocks on a FIFO nor reads a device: the type is checked by `stat` before opening and
     by `fstat` after (opened with O_NONBLOCK, so even a FIFO swapped in between does not wait)."""
@@ -82,6 +82,12 @@ def read_text(path: str | Path, kind: str, max_bytes: int, formats: str = "YAML"
         raise InputError(f"cannot be read ({type(e).__name__})") from None
     if len(data) > max_bytes:
         raise InputError(f"is more than {max_bytes:,} bytes; {too_big}")
+    return data
+
+
+def read_text(path: str | Path, kind: str, max_bytes: int, formats: str = "YAML") -> str:
+    """The UTF-8 text of the regular file `path`, at most `max_bytes` bytes long (`read_bytes`)."""
+    data = read_bytes(path, kind, max_bytes)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:

@@ -28,7 +28,7 @@ from fedjax_nav.worlds.rooms import (
     make_spec,
     parse_overrides,
 )
-from fedjax_nav.worlds.world import World, WorldError, from_dict, wall_segments
+from fedjax_nav.worlds.world import World, WorldError, from_dict, map_spec, wall_segments
 
 ROOM_ROOT = 0x5EED  # root of every room key
 TEST_SEED_BASE = 2**31  # room seeds >= this are reserved for the held-out test suites
@@ -228,6 +228,13 @@ def save_world(world: World, path: str | Path, name: str | None = None, descript
     The mapping is validated with `worlds.from_dict` before it is written."""
     path = Path(path)
     spec = to_spec_dict(world, name=name if name is not None else path.stem, description=description)
+    return write_spec(spec, path)
+
+
+def write_spec(spec: dict, path: str | Path) -> Path:
+    """Write a world file's mapping (YAML for .yaml/.yml, JSON otherwise, one row a line), after
+    `worlds.from_dict` has validated it; returns the path."""
+    path = Path(path)
     from_dict(spec, str(path))  # the file must load
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() in (".yaml", ".yml"):
@@ -279,11 +286,26 @@ def generate_to_file(family: str, seed: int, out: str | Path, **overrides) -> Pa
 # ----------------------------------------------------------------------------- command line
 
 
+def import_map(map_yaml: str | Path, out: str | Path, **draw) -> Path:
+    """Write the world of a ROS map_server map (`worlds.map_spec`; `draw`: starts, goals, seed,
+    cell) to the world file `out` (JSON, or YAML for .yaml/.yml); returns the path."""
+    return write_spec(map_spec(map_yaml, **draw), out)
+
+
+def _import_cli(args: argparse.Namespace) -> Path:
+    seed = None if args.seed is None else _check_seed(args.seed)
+    return import_map(args.map, args.out, starts=args.starts, goals=args.goals, seed=seed, cell=args.cell)
+
+
 def run_cli(args: argparse.Namespace) -> int:
-    """Run ``worlds generate``: 0 on success; 2 with one line on stderr for a bad input."""
+    """Run ``worlds generate`` or ``worlds import``: 0 on success; 2 with one line on stderr for a
+    bad input."""
     try:
-        if getattr(args, "worlds_command", "generate") != "generate":
-            raise WorldError(f"unknown worlds command {args.worlds_command!r} (commands: generate)")
+        command = getattr(args, "worlds_command", "generate")
+        if command not in ("generate", "import"):
+            raise WorldError(f"unknown worlds command {command!r} (commands: generate, import)")
+        if command == "import":
+            return _report(_import_cli(args))
         if args.family not in FAMILIES:
             raise WorldError(f"--family {args.family!r}: not a family (families: {', '.join(FAMILIES)})")
         overrides = parse_overrides(args.set or [])
@@ -291,14 +313,14 @@ def run_cli(args: argparse.Namespace) -> int:
     except WorldError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    w = json.loads(path.read_text()) if path.suffix.lower() not in (".yaml", ".yml") else None
-    extra = (
-        (
-            f": {w['size'][0]:.2f} x {w['size'][1]:.2f} m, {len(w['segments'])} segments, "
-            f"{len(w['circles'])} circles, {len(w['starts'])} starts, {len(w['goals'])} goals"
-        )
-        if w
-        else ""
-    )
-    print(f"wrote {path}{extra}")
+    return _report(path)
+
+
+def _report(path: Path) -> int:
+    """Say what was written: the world's size and rows of each kind."""
+    import yaml
+
+    w = yaml.safe_load(path.read_text())  # JSON is YAML too; the file was just written by us
+    rows = ", ".join(f"{len(w[k])} {k}" for k in ("boxes", "segments", "circles", "starts", "goals") if k in w)
+    print(f"wrote {path}: {w['size'][0]:.2f} x {w['size'][1]:.2f} m, {rows}")
     return 0

@@ -27,7 +27,8 @@ import numpy as np
 from flax import struct
 
 from fedjax_nav.messages import shorten, show
-from fedjax_nav.worlds import input_files
+from fedjax_nav.worlds import input_files, rosmap
+from fedjax_nav.worlds.grid import MapError
 
 SHIPPED = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5", "eval")
 THESIS_TRAIN = ("train-0", "train-2", "train-3", "train-4", "train-5")  # thesis dropped room 1
@@ -259,13 +260,35 @@ def resolve(name_or_path: str | Path) -> Path:
     return path
 
 
+def map_spec(path: str | Path, **draw) -> dict:
+    """The world file's mapping (size, boxes, starts, goals) of a ROS map_server map: its YAML
+    `path` and the image it names (docs/worlds.md, "Maps you already have"). `draw` (starts, goals:
+    counts; seed; cell: m; None: the map's `fedjax_nav` section or the defaults) sets how starts
+    and goals are drawn and how coarse the cells are. Problems: one WorldError line."""
+    path = resolve(path)
+    return _from_map(_read(path), path, **draw)
+
+
+def _from_map(data, path: Path, **draw) -> dict:
+    if not rosmap.is_map(data):
+        raise WorldError(f"{path}: not a ROS map_server map (it has no key 'image' nor 'resolution')")
+    try:
+        return rosmap.map_spec(
+            data, str(path), clearance=CLEARANCE, max_primitives=MAX_PRIMITIVES, max_coord=MAX_COORD, **draw
+        )
+    except MapError as e:
+        raise WorldError(str(e)) from None
+
+
 def load_with_meta(name_or_path: str | Path) -> tuple[World, dict]:
     path = resolve(name_or_path)
-    return from_dict(_read(path), str(path))
+    data = _read(path)
+    return from_dict(_from_map(data, path) if rosmap.is_map(data) else data, str(path))
 
 
 def load(name_or_path: str | Path) -> World:
-    """Load a shipped playground by name ("train-0" .. "train-5", "eval") or a JSON/YAML file."""
+    """Load a shipped playground by name ("train-0" .. "train-5", "eval"), a JSON/YAML world file,
+    or a ROS map_server map's YAML (`map_spec`: its occupied cells become boxes)."""
     return load_with_meta(name_or_path)[0]
 
 
