@@ -1,6 +1,6 @@
 """Reading a user's input file (world, config, sweep) or `--set` value without trusting it.
 
-The one reader of `fedjax_nav.worlds` (world files) and `fedjax_nav.config` (configs, sweep
+The one reader of `fedjax_nav.worlds` (world files, map images) and `fedjax_nav.config` (configs, sweep
 files, `--set` values; config imports it when it first reads, as `import fedjax_nav.config`
 stays free of jax). This module itself imports only yaml. What it refuses, fast and before
 anything is built:

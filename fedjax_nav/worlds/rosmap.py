@@ -114,9 +114,13 @@ def _pgm(data: bytes) -> np.ndarray:
 def _pillow(data: bytes) -> np.ndarray:
     """An image that Pillow reads (PNG, ...): the mean of its colour channels (alpha left out),
     rounded down as map_server does, 0..255: int[rows, cols]."""
-    from PIL import Image
+    from PIL import Image, UnidentifiedImageError
 
-    with Image.open(io.BytesIO(data)) as im:
+    try:
+        opened = Image.open(io.BytesIO(data))
+    except UnidentifiedImageError:
+        raise ValueError("not an image format that map_server or Pillow knows") from None
+    with opened as im:
         if im.width * im.height > MAX_MAP_PIXELS:
             raise ValueError(f"{im.width} x {im.height} pixels; at most {MAX_MAP_PIXELS:,} pixels")
         if im.mode.startswith("I;16"):
