@@ -361,9 +361,15 @@ def _add_worlds_import(wsub) -> None:
     )
     i.add_argument("map", help="the map's YAML file (keys image, resolution, origin, negate, *_thresh)")
     i.add_argument("--out", required=True, help="output world file (.json, or .yaml / .yml)")
-    i.add_argument("--starts", type=positive_int, default=None, metavar="N", help="draw N starts (default 1)")
-    i.add_argument("--goals", type=positive_int, default=None, metavar="N", help="draw N goals (default 1)")
-    i.add_argument("--seed", default=None, help="seed of the draw, an integer in [0, 2**32) (default 0)")
+    i.add_argument(
+        "--starts", type=positive_int, default=None, metavar="N", help="draw N starts (default: the map's own, else 1)"
+    )
+    i.add_argument(
+        "--goals", type=positive_int, default=None, metavar="N", help="draw N goals (default: the map's own, else 1)"
+    )
+    i.add_argument(
+        "--seed", default=None, help="seed of the draw, an integer in [0, 2**32) (default: the map's, else 0)"
+    )
     i.add_argument(
         "--cell",
         type=float,

@@ -92,7 +92,7 @@ _PGM = re.compile(rb"(P[25])(?:\s|#[^\n]*\n)+(\d+)(?:\s|#[^\n]*\n)+(\d+)(?:\s|#[
 
 
 def _pgm(data: bytes) -> np.ndarray:
-    """The grey levels of a binary (P5) or plain (P2) PGM, scaled to 0..255: int[rows, cols]."""
+    """The grey levels of a binary (P5) or plain (P2) PGM, scaled to 0..255: f64[rows, cols]."""
     m = _PGM.match(data)
     if not m:
         raise ValueError("no PGM header (P5 or P2, width, height, maxval)")
@@ -108,12 +108,12 @@ def _pgm(data: bytes) -> np.ndarray:
     if values.size != w * h:
         raise ValueError(f"{values.size:,} of its {w * h:,} pixels present")
     values = np.minimum(values.reshape(h, w).astype(np.int64), maxval)
-    return values if maxval == 255 else values * 255 // maxval
+    return values * (255 / maxval)
 
 
 def _pillow(data: bytes) -> np.ndarray:
     """An image that Pillow reads (PNG, ...): the mean of its colour channels (alpha left out),
-    rounded down as map_server does, 0..255: int[rows, cols]."""
+    0..255: f64[rows, cols]."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -124,15 +124,15 @@ def _pillow(data: bytes) -> np.ndarray:
         if im.width * im.height > MAX_MAP_PIXELS:
             raise ValueError(f"{im.width} x {im.height} pixels; at most {MAX_MAP_PIXELS:,} pixels")
         if im.mode.startswith("I;16"):
-            return np.asarray(im, np.int64) * 255 // 65535
+            return np.asarray(im, np.float64) * (255 / 65535)
         if im.mode not in ("1", "L", "LA", "P", "PA", "RGB", "RGBA"):
             raise ValueError(f"pixel mode {im.mode}, not grey, grey with alpha, palette or RGB(A)")
         rgb = np.asarray(im.convert("RGB") if im.mode not in ("L", "LA") else im.convert("L"), np.int64)
-    return rgb if rgb.ndim == 2 else rgb.sum(-1) // 3
+    return rgb.astype(np.float64) if rgb.ndim == 2 else rgb.sum(-1) / 3
 
 
 def read_image(path: Path, src: str) -> np.ndarray:
-    """The map image's grey levels int[rows, cols] (row 0 the top). A problem: one MapError line."""
+    """The map image's grey levels f64[rows, cols] (row 0 the top). A problem: one MapError line."""
     try:
         data = input_files.read_bytes(path, "map image", MAX_IMAGE_BYTES)
         if data[:2] in (b"P2", b"P5"):
