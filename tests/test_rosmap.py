@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from fedjax_nav import cli, worlds
 from fedjax_nav.env.geometry import beam_angles, lidar
@@ -342,3 +344,59 @@ def test_bad_import_flags_exit_2_with_one_line(tmp_path, capsys, flags, words):
 def test_a_file_that_is_not_a_map_is_refused_by_map_spec(tmp_path):
     with pytest.raises(WorldError, match="not a ROS map_server map"):
         worlds.map_spec("train-0")
+
+
+def test_cells_finer_than_the_finest_taken_are_refused_and_cell_coarsens_them(tmp_path):
+    path = write_map(tmp_path, np.full((500, 500), FREE, np.uint8), resolution=0.004)
+    with pytest.raises(WorldError, match=r"room.yaml: cells of 0.004 m are finer than 0.005 m.*fedjax_nav: cell"):
+        worlds.load(path)
+    assert "100 x 100 cells of 0.02 m" in worlds.map_spec(path, cell=0.02)["description"]
+
+
+def test_largest_region_is_the_largest_4_connected_component():
+    """Against a plain breadth-first labelling (ties: the region met first in row order)."""
+    rng = np.random.default_rng(1)
+    for density in (0.45, 0.55, 0.65):
+        clear = rng.random((30, 40)) < density
+        label, sizes = np.zeros(clear.shape, int), [0]
+        for start in zip(*np.nonzero(clear)):
+            if label[start]:
+                continue
+            sizes.append(0)
+            todo = [start]
+            label[start] = len(sizes) - 1
+            while todo:
+                r, c = todo.pop()
+                sizes[-1] += 1
+                for nb in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+                    if 0 <= nb[0] < 30 and 0 <= nb[1] < 40 and clear[nb] and not label[nb]:
+                        label[nb] = len(sizes) - 1
+                        todo.append(nb)
+        assert np.array_equal(grid.largest_region(clear), label == int(np.argmax(sizes)))
+
+
+keys = st.sampled_from([*rosmap.ROS_KEYS, "mode", "fedjax_nav", "other"])
+junk = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(10**30), 10**30),
+    st.floats(allow_nan=True),
+    st.text(max_size=8),
+    st.lists(st.floats(-10, 10) | st.integers(-3, 3), max_size=4),
+    st.dictionaries(st.sampled_from([*rosmap.OWN_KEYS, "x"]), st.integers(-2, 6) | st.floats(-1, 1), max_size=3),
+)
+good = {"image": "room.pgm", **ROS, "mode": "raw", "fedjax_nav": {"goals": 2}}
+
+
+@settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+@given(changes=st.dictionaries(keys, junk, max_size=3), drop=st.lists(keys, max_size=2))
+def test_random_maps_load_or_give_one_line(tmp_path_factory, changes, drop):
+    folder = tmp_path_factory.mktemp("fuzz")
+    write_pgm(folder / "room.pgm", room()[0])
+    spec = {k: v for k, v in {**good, **changes}.items() if k not in drop}
+    path = folder / "m.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    try:
+        assert isinstance(worlds.load(path), worlds.World)
+    except WorldError as e:
+        assert "\n" not in str(e) and str(e).startswith(str(path)), str(e)

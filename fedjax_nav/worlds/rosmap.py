@@ -31,6 +31,9 @@ DEFAULT_DRAWN = 1  # starts, and goals, drawn when the map gives none
 # (4096 x 4096: 205 m square at 5 cm); the bounds are checked before any pixel is decoded.
 MAX_IMAGE_BYTES = 64 * input_files.MIB
 MAX_MAP_PIXELS = 4096 * 4096
+# The finest cells taken (m), after any coarsening: the drawing's work grows with the clearance in
+# cells (0.35 m is 70 cells of 5 mm); maps are rarely finer than 1-5 cm.
+MIN_CELL = 0.005
 
 
 def is_map(data) -> bool:
@@ -39,11 +42,16 @@ def is_map(data) -> bool:
     return isinstance(data, dict) and ("image" in data or "resolution" in data)
 
 
+def _real(value, bound: float) -> bool:
+    """Whether `value` is a number (not a bool) with |value| <= bound (so finite, even an int of
+    400 digits, which has no float)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= bound
+
+
 def _number(data: dict, key: str, src: str, lo: float, hi: float, what: str) -> float:
     """data[key], a finite number in [lo, hi], else a MapError naming the key."""
     value = data[key]
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or not lo <= value <= hi:
+    if not _real(value, max(abs(lo), abs(hi))) or not lo <= value <= hi:
         raise MapError(f"{src}: key '{key}' must be {what}, got {show(value)}")
     return float(value)
 
@@ -61,12 +69,7 @@ def settings(data: dict, src: str, max_coord: float) -> dict:
     if out["resolution"] <= 0:
         raise MapError(f"{src}: key 'resolution' must be the cell size in m (> 0), got {show(data['resolution'])}")
     origin = data["origin"]
-    if not (
-        isinstance(origin, list)
-        and len(origin) == 3
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in origin)
-        and all(math.isfinite(v) and abs(v) <= max_coord for v in origin)
-    ):
+    if not (isinstance(origin, list) and len(origin) == 3 and all(_real(v, max_coord) for v in origin)):
         raise MapError(
             f"{src}: key 'origin' must be [x, y, yaw] (m, m, rad; finite, within +-{max_coord:g}), got {show(origin)}"
         )
@@ -202,8 +205,7 @@ def own_settings(data: dict, src: str, max_rows: int, max_coord: float, flags: d
     if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
         raise MapError(f"{src}: {_name('seed', flags)} must be an integer in [0, {2**32 - 1}], got {show(seed)}")
     cell = sec.get("cell")
-    ok = isinstance(cell, (int, float)) and not isinstance(cell, bool) and math.isfinite(cell)
-    if cell is not None and not (ok and 0 < cell <= max_coord):
+    if cell is not None and not (_real(cell, max_coord) and cell > 0):
         raise MapError(f"{src}: {_name('cell', flags)} must be a cell size in m (> 0), got {show(cell)}")
     return {**out, "seed": seed, "cell": cell, "cell_name": _name("cell", flags)}
 
@@ -274,6 +276,12 @@ def map_spec(data: dict, src: str, *, clearance: float, max_primitives: int, max
     k = cell_factor(own["cell"], s["resolution"], src, own["cell_name"])
     occ = grid.coarsen(occupied(read_image(s["image"], src), s), k)
     res, (h, w) = s["resolution"] * k, occ.shape
+    if res < MIN_CELL:
+        flag = own["cell_name"] if own["cell"] is not None else "--cell, or fedjax_nav: cell:"
+        raise MapError(
+            f"{src}: cells of {res:g} m are finer than {MIN_CELL:g} m, the finest taken; coarsen them ({flag} "
+            f"a multiple of {s['resolution']:g} m of at least {MIN_CELL:g})"
+        )
     size = np.array([w * res, h * res])
     if size.max() > max_coord:
         raise MapError(f"{src}: the map is {size[0]:g} x {size[1]:g} m; a world is at most {max_coord:g} m a side")
