@@ -400,3 +400,10 @@ def test_random_maps_load_or_give_one_line(tmp_path_factory, changes, drop):
         assert isinstance(worlds.load(path), worlds.World)
     except WorldError as e:
         assert "\n" not in str(e) and str(e).startswith(str(path)), str(e)
+
+
+def test_an_out_path_below_a_file_is_one_line_exit_2(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    assert cli.main(["worlds", "import", str(write_map(tmp_path)), "--out", str(tmp_path / "f" / "w.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"error: {tmp_path / 'f'}: file exists"  # the command line's path for a bad --out
