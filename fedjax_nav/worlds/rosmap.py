@@ -231,7 +231,7 @@ def _to_grid(points: np.ndarray, origin) -> np.ndarray:
     out = np.array(points, np.float64)
     out[:, 0], out[:, 1] = c * dx + s * dy, -s * dx + c * dy
     if points.shape[1] == 3:
-        out[:, 2] = (points[:, 2] - yaw + math.pi) % (2 * math.pi) - math.pi
+        out[:, 2] = points[:, 2] - yaw
     return out
 
 
