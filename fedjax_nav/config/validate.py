@@ -18,6 +18,7 @@ from fedjax_nav.config.schema import (
     ConfigError,
     canonical,
     field_info,
+    get,
     robot_problem,
 )
 from fedjax_nav.learner_table import get as learner_row
@@ -251,6 +252,7 @@ def check(cfg: Config, src: str = "<config>") -> None:
     _check_learner(cfg, src)
     _check_rooms(cfg, src)
     _check_learnability(cfg, src)
+    _check_updates(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:
         raise ConfigError(
             f"{src}: run.episodes ({cfg.run.episodes}) must be a multiple of run.chunk_episodes "
@@ -291,6 +293,39 @@ def _check_learner(cfg: Config, src: str) -> None:
         rows, what = (n, per) if recurrent else (p.rollout * n, f"ppo.rollout x {per}")
         if rows % p.minibatches:
             raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
+
+
+def _check_updates(cfg: Config, src: str) -> None:
+    """A run in which the learner could never update its networks (docs/reliability.md, "Runs that
+    cannot learn"), from its row of the learner table: an update event follows step g (0-based,
+    per environment) when g + 1 is a multiple of the row's `update_every` field (ppo.rollout,
+    offpolicy.train_every: `due` in agents/learners.py and agents/learner_ppo.py), and, for a
+    learner with a replay buffer, once that buffer has received a batch, (g + 1) x rows per step
+    >= offpolicy.batch_size (`_ready`). The run has run.episodes x env.episode_length steps."""
+    from fedjax_nav.methods import METHODS
+
+    row = learner_row(cfg.learner)
+    steps = cfg.run.episodes * cfg.env.episode_length
+    whole = f"run.episodes x env.episode_length = {steps:,} steps per environment"
+    every = get(cfg, row.update_every)
+    if every > steps:
+        raise ConfigError(
+            f"{src}: {row.update_every} ({every:,} steps) is longer than the whole run ({whole}); "
+            "no update would ever happen"
+        )
+    if row.on_policy:
+        return
+    shared = METHODS[cfg.method].shared_buffer
+    rows = cfg.env.envs_per_robot * (cfg.num_robots if shared else 1)
+    last = steps // every * every  # steps done at the run's last update event
+    if last * rows < cfg.offpolicy.batch_size:
+        per = "env.envs_per_robot" + (" x robots, one shared buffer" if shared else "")
+        raise ConfigError(
+            f"{src}: offpolicy.batch_size ({cfg.offpolicy.batch_size:,}) is more than the rows a replay buffer "
+            f"has received at the run's last update event ({last:,} steps x {rows} per step ({per}) = "
+            f"{last * rows:,}; {whole}, an update every {row.update_every} = {every}); "
+            "no update would ever happen"
+        )
 
 
 def _check_n_step(cfg: Config, src: str, method, on_policy: bool) -> None:
