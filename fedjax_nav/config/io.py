@@ -94,6 +94,8 @@ def locate(path: str | Path, kind: str = "config") -> Path:
         why = getattr(e, "strerror", None) or type(e).__name__
         raise ConfigError(f"{shorten(str(path), PATH_CHARS)}: cannot be read as a {kind} file ({why})") from None
     if not exists:
+        if why := _input_files().missing_link(found):  # a symlink loop is not "no such file"
+            raise ConfigError(f"{shorten(str(found), PATH_CHARS)}: {why}; not a {kind} file")
         raise ConfigError(
             f"{shorten(str(found), PATH_CHARS)}: no such {kind} file (shipped {kind}s: {', '.join(names(kind))})"
         )
