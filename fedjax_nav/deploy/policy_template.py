@@ -9,8 +9,17 @@ This file is copied into every exported folder by `fedjax-nav export` (it is
                                 msg.range_min, msg.range_max)          # a sensor_msgs/LaserScan
     obs = policy.observation(ranges, (x, y, yaw), (goal_x, goal_y), prev_action)
     action = policy(obs)                            # (v / v_max, omega / omega_max)
+    if policy.last_unsafe: ...                      # NaN/inf in obs: action is the stop command (0, 0)
     v, omega = policy.velocity(action)              # m/s, rad/s  -> geometry_msgs/Twist
     policy.reset()                                  # at a new goal (an episode's start)
+
+A safe controller (docs/export.md, "Unsafe observations"): an observation of the wrong length is a
+ValueError naming the size expected and the size given (`check_observation`); one holding NaN or
++-inf anywhere (a beam, the goal, the previous action), or whose action would not be finite,
+never reaches the motors: its action is the stop command `STOP` = (0, 0) (v = 0, omega = 0), and
+`policy.last_unsafe` says so (a bool for one observation, a bool array for a batch, True where the
+row was stopped). A recurrent policy's state is not advanced by such a row: it keeps the state it
+had, and never holds a NaN. `velocity` turns a non-finite action into (0, 0) too.
 
 Networks (meta.json's network.kind, one per learner's greedy actor):
 
@@ -23,7 +32,9 @@ Networks (meta.json's network.kind, one per learner's greedy actor):
   (depth - 1) x (Dense + activation), the 2-unit mean, squashed as above. `gru_forward(weights,
   obs, h) -> (action, h)`. `Policy` keeps h between calls: zeros at the start and after
   `reset()`, which a robot calls at every new goal (the simulator's episode start, where
-  training reset it). Without a memory (the other kinds) `reset()` does nothing.
+  training reset it). Without a memory (the other kinds) `reset()` does nothing. The state is kept
+  per batch shape (one observation, a batch of N): a batch and a single observation each carry
+  their own, and neither changes the other's shape.
 
 Observation normalisation (a PPO run with ppo.normalize_obs): weights.npz then also holds
 "obs_norm/mean", "obs_norm/std" [obs_size] and "obs_norm/clip" [], the running statistics the
@@ -75,7 +86,10 @@ import numpy as np
 
 __all__ = [
     "ACTIVATIONS",
+    "STOP",
     "Policy",
+    "check_observation",
+    "stop_unsafe",
     "actor_forward",
     "squashed_forward",
     "gru_forward",
@@ -209,6 +223,42 @@ def gru_forward(weights: dict, obs, h, activation: str = "tanh") -> tuple[np.nda
 INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}
 
 
+# ----------------------------------------------------------------------------- unsafe observations
+
+# The command for an observation that cannot be trusted: v / v_max = 0, omega / omega_max = 0.
+STOP = np.zeros(2, np.float32)
+
+
+def check_observation(obs, obs_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(obs float32[..., obs_size] with every unsafe row set to zeros, unsafe bool[...]): a row is
+    unsafe when any entry is NaN or +-inf (float32: a float64 beyond 3.4e38 is inf). The zeros keep
+    the forward pass of a batch free of NaN arithmetic; `stop_unsafe` replaces their actions. An
+    observation whose last axis is not obs_size entries is a ValueError naming both sizes."""
+    with np.errstate(over="ignore"):  # a float64 beyond float32 becomes inf: flagged below
+        x = np.asarray(obs, np.float32)
+    if x.ndim == 0 or x.shape[-1] != obs_size:
+        got = "a scalar" if x.ndim == 0 else f"{x.shape[-1]} entries (shape {list(x.shape)})"
+        raise ValueError(
+            f"an observation has {obs_size} entries (num_beams ranges, goal distance, goal bearing, "
+            f"previous action v and omega); got {got}"
+        )
+    unsafe = ~np.all(np.isfinite(x), axis=-1)
+    if np.any(unsafe):
+        x = np.where(unsafe[..., None], np.float32(0.0), x).astype(np.float32)
+    return x, unsafe
+
+
+def stop_unsafe(action, unsafe) -> tuple[np.ndarray, np.ndarray]:
+    """(action float32[..., 2] with STOP in every unsafe row and every row that is not finite, the
+    rows stopped bool[...]): what `Policy` sends for the rows `check_observation` flagged (a
+    network's output is finite for finite inputs, unless a huge input overflows it)."""
+    a = np.asarray(action, np.float32)
+    stopped = np.asarray(unsafe, bool) | ~np.all(np.isfinite(a), axis=-1)
+    if np.any(stopped):
+        a = np.where(stopped[..., None], STOP, a).astype(np.float32)
+    return a, stopped
+
+
 # ----------------------------------------------------------------------------- observations
 
 
@@ -310,8 +360,12 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
 
 
 def action_to_velocity(action, v_max: float, omega_max: float) -> tuple[float, float]:
-    """Network units -> (v m/s, omega rad/s), after clipping to the box as the simulator does."""
-    a = np.clip(np.asarray(action, np.float64).reshape(-1)[:2], [0.0, -1.0], [1.0, 1.0])
+    """Network units -> (v m/s, omega rad/s), after clipping to the box as the simulator does; an
+    action with a NaN or an infinity is no command: (0.0, 0.0)."""
+    a = np.asarray(action, np.float64).reshape(-1)[:2]
+    if not np.all(np.isfinite(a)):
+        return 0.0, 0.0
+    a = np.clip(a, [0.0, -1.0], [1.0, 1.0])
     return float(a[0] * v_max), float(a[1] * omega_max)
 
 
@@ -334,9 +388,11 @@ def load_weights(folder: str | None = None) -> dict:
 class Policy:
     """The exported actor with the run's settings (meta.json) and its observation helpers.
 
-    A recurrent policy (network kind "gru") keeps its hidden state `h` between calls: zeros at
-    the start and after `reset()` (call it at every new goal). `reset()` is there for every kind,
-    so that a robot's loop need not know which one it runs."""
+    A recurrent policy (network kind "gru") keeps its hidden state between calls, one per batch
+    shape (`h`: the one of the last call): zeros at the start and after `reset()` (call it at
+    every new goal). `reset()` is there for every kind, so that a robot's loop need not know which
+    one it runs. Unsafe observations (NaN, +-inf) get the stop command and leave the state as it
+    was; `last_unsafe` says which rows of the last call were stopped."""
 
     def __init__(self, folder: str | None = None, weights: dict | None = None, meta: dict | None = None):
         self.folder = folder or HERE
@@ -367,18 +423,35 @@ class Policy:
         self.reset()
 
     def reset(self) -> None:
-        """An episode's start (a new goal): the hidden state back to zeros (no-op without one)."""
+        """An episode's start (a new goal): every hidden state back to zeros (no-op without one)."""
+        self.states = {}  # the batch's leading shape -> its hidden state float32[*shape, gru]
         self.h = np.zeros(self.memory_size, np.float32)
+        self.last_unsafe = False
 
     def __call__(self, obs) -> np.ndarray:
-        """obs float32[..., obs_size] -> action float32[..., 2] in network units; a recurrent
-        policy advances its hidden state (batched obs: one state per row after the first call)."""
-        if self.kind == "gru":
-            action, self.h = gru_forward(self.weights, obs, self.h, self.activation)
-            return action
-        if self.kind == "squashed":
-            return squashed_forward(self.weights, obs, self.activation)
-        return actor_forward(self.weights, obs, self.activation)
+        """obs float32[..., obs_size] -> action float32[..., 2] in network units, the shape of obs
+        with its last axis 2; a recurrent policy advances the hidden state of this batch shape
+        (one per row). A row with a NaN or an infinity gets `STOP` and keeps its state
+        (`last_unsafe`); an observation of another length is a ValueError (`check_observation`)."""
+        x, unsafe = check_observation(obs, self.obs_size)
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge finite input may overflow: stopped below
+            if self.kind == "gru":
+                lead = x.shape[:-1]
+                h = self.states.get(lead)
+                h = np.zeros((*lead, self.memory_size), np.float32) if h is None else h
+                action, h_next = gru_forward(self.weights, x, h, self.activation)
+            elif self.kind == "squashed":
+                action = squashed_forward(self.weights, x, self.activation)
+            else:
+                action = actor_forward(self.weights, x, self.activation)
+        action, stopped = stop_unsafe(action, unsafe)
+        if self.kind == "gru":  # a stopped row's state stays what it was (never a NaN)
+            bad = stopped | ~np.all(np.isfinite(h_next), axis=-1)
+            self.h = self.states[lead] = np.where(bad[..., None], h, h_next).astype(np.float32)
+            stopped = bad
+            action = np.where(bad[..., None], STOP, action).astype(np.float32)
+        self.last_unsafe = bool(stopped) if stopped.ndim == 0 else stopped
+        return action
 
     act = __call__
 
