@@ -13,28 +13,21 @@ This file is copied into every exported folder by `fedjax-nav export` (it is
     v, omega = policy.velocity(action)              # m/s, rad/s  -> geometry_msgs/Twist
     policy.reset()                                  # at a new goal (an episode's start)
 
-A safe controller (docs/export.md, "Unsafe observations"): an observation of the wrong length is a
-ValueError naming the size expected and the size given (`check_observation`); one holding NaN or
-+-inf anywhere (a beam, the goal, the previous action), or whose action would not be finite,
-never reaches the motors: its action is the stop command `STOP` = (0, 0) (v = 0, omega = 0), and
-`policy.last_unsafe` says so (a bool for one observation, a bool array for a batch, True where the
-row was stopped). A recurrent policy's state is not advanced by such a row: it keeps the state it
-had, and never holds a NaN. `velocity` turns a non-finite action into (0, 0) too.
+Safety (docs/export.md, "Unsafe observations"): a wrong-length observation is a ValueError naming
+both sizes; a row with a NaN or +-inf in any entry (or whose action is not finite) gets the stop
+command `STOP` = (0, 0), is flagged in `policy.last_unsafe` and leaves a recurrent state as it was.
 
 Networks (meta.json's network.kind, one per learner's greedy actor):
 
 - "heads" (DDPG, TD3): depth x (Dense + activation), then two 1-unit heads, sigmoid (v / v_max)
   and tanh (omega / omega_max). `actor_forward`.
 - "squashed" (SAC, feed-forward PPO): depth x (Dense + activation), then a 2-unit mean, squashed
-  into the box: (0.5 + 0.5 tanh(mean_v), tanh(mean_omega)), the squashed Gaussian's mode.
-  `squashed_forward`.
+  into the box: (0.5 + 0.5 tanh(mean_v), tanh(mean_omega)), the Gaussian's mode. `squashed_forward`.
 - "gru" (recurrent PPO): Dense + activation, a GRU cell (flax's GRUCell) on the hidden state h,
   (depth - 1) x (Dense + activation), the 2-unit mean, squashed as above. `gru_forward(weights,
   obs, h) -> (action, h)`. `Policy` keeps h between calls: zeros at the start and after
   `reset()`, which a robot calls at every new goal (the simulator's episode start, where
-  training reset it). Without a memory (the other kinds) `reset()` does nothing. The state is kept
-  per batch shape (one observation, a batch of N): a batch and a single observation each carry
-  their own, and neither changes the other's shape.
+  training reset it), one state per batch shape. Without a memory `reset()` does nothing.
 
 Observation normalisation (a PPO run with ppo.normalize_obs): weights.npz then also holds
 "obs_norm/mean", "obs_norm/std" [obs_size] and "obs_norm/clip" [], the running statistics the
@@ -51,29 +44,11 @@ Conventions (the simulator's, fedjax_nav.env.nav / fedjax_nav.env.geometry):
   counter-clockwise positive), and the previous action in network units.
 - Action (the network's output and units): (v / v_max in [0, 1], omega / omega_max in [-1, 1]);
   v_max (m/s) and omega_max (rad/s) are the run's, in meta.json.
-- Scan pooling (`pool_scan`): a laser scan with more samples than the policy has beams is reduced
-  to one range per beam. Beam i's sector is the samples whose angle lies in
-  [beam angle - pi / num_beams, beam angle + pi / num_beams); with a 360-sample scan and 24 beams
-  each sector holds 15 samples, the beam's own direction among them.
-  mode="min" (default): the sector minimum. Never longer than the exact beam (the nearer obstacle
-  wins), so the robot sees obstacles a thin beam would miss; but it is not what the policy was
-  trained on: a wall seen at a slant, or an obstacle edge inside the sector, reads shorter than
-  the simulator's ray (measured on three shipped worlds: median 4-7 cm shorter, the 10 % worst
-  beams 0.8-1.1 m or more shorter; docs/export.md).
-  mode="nearest": the valid sample nearest the beam's angle, a thin ray like the simulator's
-  (identical to it when the scan has a sample at every beam angle, as 360 samples do).
-- Invalid scan values, as the simulator would see them:
-    +inf, or a finite value above range_max   -> no return: max_range (the simulator's reading
-                                                  when nothing is within range);
-    NaN, -inf, 0, negative, or below range_min -> no information: left out of the sector minimum
-                                                  (`invalid=None`, the default); a sector with no
-                                                  valid sample reads max_range. Pass e.g.
-                                                  `invalid=0.0` to count them as that range instead
-                                                  (conservative: an unreadable sector looks blocked).
-  Rationale: the simulator's robot never gets closer than the collision distance (0.25 m by
-  default) to an obstacle, while range_min of a TurtleBot3 LDS is about 0.12 m; readings below
-  range_min, and 0 / NaN (what LDS drivers report for no echo), are dropouts or the robot's own
-  body, not obstacles the policy was trained to react to.
+- Scan pooling (`pool_scan`): a scan with more samples than beams is reduced to one range per
+  beam, the sector minimum (mode="min", default: never longer than the exact beam, but shorter
+  than the simulator's ray where the range changes within the sector: median 4-7 cm, the 10 %
+  worst beams 0.8-1.1 m or more on three shipped worlds) or the valid sample nearest the beam's
+  angle (mode="nearest", a thin ray like the simulator's); invalid samples: `pool_scan`.
 """
 
 from __future__ import annotations
@@ -154,13 +129,7 @@ def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
     weights: "hidden_{i}/kernel" [in, hidden], "hidden_{i}/bias" [hidden] for i < depth, and
     "v_head/kernel" [hidden, 1], "v_head/bias" [1], "omega_head/kernel", "omega_head/bias".
     """
-    if activation not in ACTIVATIONS:
-        raise ValueError(f"unknown activation {activation!r} (known: {', '.join(ACTIVATIONS)})")
-    act = ACTIVATIONS[activation]
-    x = normalize_input(weights, obs)
-    depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
-    for i in range(depth):
-        x = act(x @ weights[f"hidden_{i}/kernel"] + weights[f"hidden_{i}/bias"])
+    x = _trunk(weights, normalize_input(weights, obs), _activation(activation))
     v = _sigmoid(x @ weights["v_head/kernel"] + weights["v_head/bias"])
     w = np.tanh(x @ weights["omega_head/kernel"] + weights["omega_head/bias"])
     return np.concatenate([v, w], axis=-1).astype(np.float32)
@@ -225,38 +194,27 @@ INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}
 
 # ----------------------------------------------------------------------------- unsafe observations
 
-# The command for an observation that cannot be trusted: v / v_max = 0, omega / omega_max = 0.
-STOP = np.zeros(2, np.float32)
+STOP = np.zeros(2, np.float32)  # the command for an observation that cannot be trusted: v = omega = 0
 
 
 def check_observation(obs, obs_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """(obs float32[..., obs_size] with every unsafe row set to zeros, unsafe bool[...]): a row is
-    unsafe when any entry is NaN or +-inf (float32: a float64 beyond 3.4e38 is inf). The zeros keep
-    the forward pass of a batch free of NaN arithmetic; `stop_unsafe` replaces their actions. An
-    observation whose last axis is not obs_size entries is a ValueError naming both sizes."""
-    with np.errstate(over="ignore"):  # a float64 beyond float32 becomes inf: flagged below
+    """(obs float32[..., obs_size] with its unsafe rows zeroed, so that a batch's pass stays finite;
+    unsafe bool[...]: a NaN or +-inf, float32's, in the row). Another length: a ValueError."""
+    with np.errstate(over="ignore"):  # a float64 beyond float32 becomes inf: unsafe
         x = np.asarray(obs, np.float32)
     if x.ndim == 0 or x.shape[-1] != obs_size:
         got = "a scalar" if x.ndim == 0 else f"{x.shape[-1]} entries (shape {list(x.shape)})"
-        raise ValueError(
-            f"an observation has {obs_size} entries (num_beams ranges, goal distance, goal bearing, "
-            f"previous action v and omega); got {got}"
-        )
+        what = "num_beams ranges, goal distance, goal bearing, previous action v and omega"
+        raise ValueError(f"an observation has {obs_size} entries ({what}); got {got}")
     unsafe = ~np.all(np.isfinite(x), axis=-1)
-    if np.any(unsafe):
-        x = np.where(unsafe[..., None], np.float32(0.0), x).astype(np.float32)
-    return x, unsafe
+    return np.where(unsafe[..., None], np.float32(0.0), x), unsafe
 
 
 def stop_unsafe(action, unsafe) -> tuple[np.ndarray, np.ndarray]:
-    """(action float32[..., 2] with STOP in every unsafe row and every row that is not finite, the
-    rows stopped bool[...]): what `Policy` sends for the rows `check_observation` flagged (a
-    network's output is finite for finite inputs, unless a huge input overflows it)."""
+    """(action float32[..., 2] with `STOP` in each unsafe row and each row not finite, the rows stopped)."""
     a = np.asarray(action, np.float32)
     stopped = np.asarray(unsafe, bool) | ~np.all(np.isfinite(a), axis=-1)
-    if np.any(stopped):
-        a = np.where(stopped[..., None], STOP, a).astype(np.float32)
-    return a, stopped
+    return np.where(stopped[..., None], STOP, a), stopped
 
 
 # ----------------------------------------------------------------------------- observations
@@ -283,7 +241,9 @@ def pool_scan(
     between two beams is seen). mode="nearest": the beam reads the valid sample nearest its angle
     (a thin ray, like the simulator's own beams; equal to them when the scan has a sample at each
     beam angle). Either way the reading is clipped to max_range, and a sector with no valid sample
-    reads max_range; see the module docstring for inf / NaN / 0 / below-range_min (`invalid`).
+    reads max_range. Invalid samples: +inf or above range_max is no return (max_range); NaN, -inf,
+    0, negative or below range_min is no information (a dropout, the robot's body: the simulated
+    robot never comes within 0.25 m), left out (`invalid=None`) or read as the range `invalid`.
     """
     if mode not in ("min", "nearest"):
         raise ValueError(f"mode must be 'min' or 'nearest', got {mode!r}")
@@ -388,11 +348,9 @@ def load_weights(folder: str | None = None) -> dict:
 class Policy:
     """The exported actor with the run's settings (meta.json) and its observation helpers.
 
-    A recurrent policy (network kind "gru") keeps its hidden state between calls, one per batch
-    shape (`h`: the one of the last call): zeros at the start and after `reset()` (call it at
-    every new goal). `reset()` is there for every kind, so that a robot's loop need not know which
-    one it runs. Unsafe observations (NaN, +-inf) get the stop command and leave the state as it
-    was; `last_unsafe` says which rows of the last call were stopped."""
+    A recurrent policy ("gru") keeps a hidden state per batch shape (`h`: the last call's), zeros at
+    the start and after `reset()` (at every new goal; a no-op for the other kinds). An unsafe row
+    (NaN, +-inf) gets `STOP`, keeps its state and is flagged in `last_unsafe`."""
 
     def __init__(self, folder: str | None = None, weights: dict | None = None, meta: dict | None = None):
         self.folder = folder or HERE
@@ -418,38 +376,30 @@ class Policy:
                 f"{self.folder}: weights take {k.shape[0]} inputs, meta.json says "
                 f"num_beams={self.num_beams} (obs size {self.obs_size})"
             )
-        # the hidden state's size (0: no memory)
-        self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0
+        self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0  # 0: none
         self.reset()
 
     def reset(self) -> None:
         """An episode's start (a new goal): every hidden state back to zeros (no-op without one)."""
-        self.states = {}  # the batch's leading shape -> its hidden state float32[*shape, gru]
+        self.states = {}  # the batch's leading shape -> its hidden state float32[*shape, memory_size]
         self.h = np.zeros(self.memory_size, np.float32)
         self.last_unsafe = False
 
     def __call__(self, obs) -> np.ndarray:
-        """obs float32[..., obs_size] -> action float32[..., 2] in network units, the shape of obs
-        with its last axis 2; a recurrent policy advances the hidden state of this batch shape
-        (one per row). A row with a NaN or an infinity gets `STOP` and keeps its state
-        (`last_unsafe`); an observation of another length is a ValueError (`check_observation`)."""
+        """obs float32[..., obs_size] -> action float32[..., 2] in network units (the class docstring
+        for the state and unsafe rows); another length is a ValueError (`check_observation`)."""
         x, unsafe = check_observation(obs, self.obs_size)
-        with np.errstate(over="ignore", invalid="ignore"):  # a huge finite input may overflow: stopped below
+        lead = x.shape[:-1]
+        h = self.states.get(lead, np.zeros((*lead, self.memory_size), np.float32))
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge input may overflow: stopped below
             if self.kind == "gru":
-                lead = x.shape[:-1]
-                h = self.states.get(lead)
-                h = np.zeros((*lead, self.memory_size), np.float32) if h is None else h
                 action, h_next = gru_forward(self.weights, x, h, self.activation)
-            elif self.kind == "squashed":
-                action = squashed_forward(self.weights, x, self.activation)
+                unsafe = unsafe | ~np.all(np.isfinite(h_next), axis=-1)
             else:
-                action = actor_forward(self.weights, x, self.activation)
+                forward = squashed_forward if self.kind == "squashed" else actor_forward
+                action, h_next = forward(self.weights, x, self.activation), h
         action, stopped = stop_unsafe(action, unsafe)
-        if self.kind == "gru":  # a stopped row's state stays what it was (never a NaN)
-            bad = stopped | ~np.all(np.isfinite(h_next), axis=-1)
-            self.h = self.states[lead] = np.where(bad[..., None], h, h_next).astype(np.float32)
-            stopped = bad
-            action = np.where(bad[..., None], STOP, action).astype(np.float32)
+        self.h = self.states[lead] = np.where(stopped[..., None], h, h_next)  # a stopped row keeps its state
         self.last_unsafe = bool(stopped) if stopped.ndim == 0 else stopped
         return action
 
