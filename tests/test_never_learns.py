@@ -164,3 +164,32 @@ def test_the_refusal_is_exactly_a_run_without_an_update_event(learner, method, e
         refused = str(e)
         assert NEVER in refused, refused  # no other check applies to these configs
     assert (refused is not None) == (update_events(cfg) == 0), (refused, update_events(cfg))
+
+
+# ----------------------------------------------------------------------------- runs already trained
+
+
+def test_a_saved_run_that_could_never_update_is_still_read_and_can_be_extended(tmp_path):
+    """A run directory trained before the check (the old README smoke run: 2 x 32 steps, batch 512)
+    is read back for evaluate, export and plots (`rundir.read_config`), and resumed as it was; a
+    resume that changes its config is checked, so extending it to a run that updates is accepted."""
+    import argparse
+
+    from fedjax_nav import rundir
+    from fedjax_nav.cli.train import _resumed_config
+    from fedjax_nav.config import save_config
+
+    sets = ["run.episodes=2", "env.episode_length=32", "run.chunk_episodes=2", "run.checkpoint_every=0"]
+    ok = load_config("thesis/flddpg", sets + ["offpolicy.batch_size=32"])
+    old = dataclasses.replace(ok, offpolicy=dataclasses.replace(ok.offpolicy, batch_size=512))
+    run = tmp_path / "run"
+    run.mkdir()
+    save_config(old, run / rundir.CONFIG)
+    with pytest.raises(ConfigError, match=NEVER):
+        load_config(run / rundir.CONFIG)
+    assert rundir.read_config(run) == old
+    args = argparse.Namespace(resume=str(run), config=None, episodes=None, allow_config_change=True)
+    assert _resumed_config(args, [])[0] == old  # resumed as it was started
+    assert _resumed_config(args, ["run.episodes=20"])[0].run.episodes == 20  # 640 steps: a batch of 512 by step 515
+    with pytest.raises(ConfigError, match=NEVER):
+        _resumed_config(args, ["run.episodes=4"])  # 128 steps x 1 row < 512

@@ -161,12 +161,12 @@ def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, 
     return out, written
 
 
-def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = ()) -> Config:
+def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (), learns: bool = True) -> Config:
     """A validated Config from a config mapping read from `src`.
 
     `overridden`: the dotted keys given by `--set` (`io.load_config`); an error in one of their
     values names `--set`, one in any other value names `src`, and a cross-field error names
-    `src (with --set)`."""
+    `src (with --set)`. `learns=False`: a run's saved config read back (`check`)."""
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: a config must be a mapping with keys {', '.join((*TOP_LEVEL, *SECTIONS))}")
     overridden = {canonical(k) for k in overridden}
@@ -185,7 +185,7 @@ def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (
         if name in data:
             kwargs[name] = _coerce(data[name], top[name], f"{where(name)}: {name}")
     cfg = fit_run_sizes(Config(**kwargs), overridden)
-    check(cfg, f"{src} (with --set)" if overridden else src)
+    check(cfg, f"{src} (with --set)" if overridden else src, learns)
     return cfg
 
 
@@ -219,8 +219,10 @@ def fit_run_sizes(cfg: Config, overridden: Collection[str]) -> Config:
     return dataclasses.replace(cfg, run=dataclasses.replace(r, chunk_episodes=chunk, checkpoint_every=every))
 
 
-def check(cfg: Config, src: str = "<config>") -> None:
-    """Cross-field checks (each names the fields involved)."""
+def check(cfg: Config, src: str = "<config>", learns: bool = True) -> None:
+    """Cross-field checks (each names the fields involved). `learns=False` leaves out the refusal of
+    a run that could never update (`_check_updates`): for a run's saved config read back, to
+    evaluate, export or resume what was trained, not to choose what to train (docs/reliability.md)."""
     if msg := robot_problem(cfg.robot, cfg.env.num_beams):
         raise ConfigError(f"{src}: {msg}")
     d = cfg.offpolicy
@@ -252,7 +254,8 @@ def check(cfg: Config, src: str = "<config>") -> None:
     _check_learner(cfg, src)
     _check_rooms(cfg, src)
     _check_learnability(cfg, src)
-    _check_updates(cfg, src)
+    if learns:
+        _check_updates(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:
         raise ConfigError(
             f"{src}: run.episodes ({cfg.run.episodes}) must be a multiple of run.chunk_episodes "
