@@ -245,10 +245,11 @@ def run_dir(path: str | Path, need: tuple[str, ...] = (CONFIG,)) -> Path:
 
 
 def read_config(run: str | Path):
-    """The run's resolved Config (ConfigError names the file and the field)."""
+    """The run's resolved Config (ConfigError names the file and the field); a run that could never
+    update is read back all the same (it was trained: `config.validate.check`'s `learns`)."""
     from fedjax_nav.config import load_config
 
-    return load_config(run_dir(run) / CONFIG)
+    return load_config(run_dir(run) / CONFIG, learns=False)
 
 
 def read_metrics(run: str | Path, columns: list[str] | None = None):

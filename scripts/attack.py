@@ -315,6 +315,8 @@ WORLD_NUMBERS = {
     "inf": float("inf"),
     "-inf": float("-inf"),
     "text": "abc",
+    "num-text": "3",  # numpy would parse it
+    "bool": True,  # numpy would read it as 1.0
     "null": None,
     "list": [1.0],
 }
@@ -345,6 +347,8 @@ def world_shapes():
     yield "5001-circles", {**base, "circles": [[2.5, -2.5, 0.01]] * 5001}
     yield "deep-nesting", "[" * 100000 + "]" * 100000
     yield "start-outside", {**base, "starts": [[100.0, 0.0, 0.0]]}
+    yield "size-booleans", {**base, "size": [True, True]}
+    yield "size-texts", {**base, "size": ["6", "6"]}
 
 
 # ----------------------------------------------------------------------------- 1. command lines
@@ -385,6 +389,7 @@ RUN_DIRS = ("resume", "run_dirs", "run_dir")  # path arguments that name a run d
 NEEDS_RUN = ("evaluate", "export")  # their base points at a private copy of the reference run
 # The bad-number worlds given to render: a size, a box's yaw, a segment, a radius, a start's x and yaw, a goal.
 CLI_WORLDS = tuple(f"{c}-{v}" for c in ("size0", "circles2", "starts2", "goals0") for v in ("1e39", "nan"))
+CLI_WORLDS += ("size0-bool", "starts2-num-text")  # numbers numpy would have read: true, "3"
 EVAL_WORLDS = (
     "size0-",
     "starts2-",
@@ -552,6 +557,9 @@ SET_VALUES = {
     "buffer-1e8": "offpolicy.buffer_size=100000000",
     "batch-1e6": "offpolicy.batch_size=1000000",
     "room-spec-fixed": "env.room_spec=walls_max=2",
+    # runs that could never update (TINY: 3 x 64 = 192 steps): refused, not trained with every loss 0
+    "batch-beyond-run": "offpolicy.batch_size=256",  # a buffer holds 190 rows at the last update (step 190)
+    "train-every-beyond-run": "offpolicy.train_every=193",
     "seed-int32": "run.seed=2147483647",
 }
 # Config files (train --config): each refused.
@@ -568,6 +576,7 @@ CONFIG_TEXTS = {
     "a-date": "offpolicy:\n  gamma: 2024-01-01\n",
     "old-name-a-date": "ddpg:\n  gamma: 2024-01-01\n",  # an offpolicy field by its old name
     "old-and-new-name": "ddpg:\n  gamma: 0.9\noffpolicy:\n  gamma: 0.8\n",  # one field, two values
+    "ppo-rollout-beyond-run": "learner: ppo\nppo:\n  rollout: 256\n",  # TINY's run is 192 steps: no update
     "30mb-string": None,  # written below: 30 MB
 }
 # Sweep files (sweep FILE): each refused.
@@ -1120,6 +1129,13 @@ def replace_with(path: Path, kind: str, fx: Fixtures) -> None:
         path.write_text("x\n")
 
 
+def suite_folder_with(folder: Path, kind: str, fx: Fixtures) -> None:
+    """A folder of one good world file and `bad.json`, a `kind` ("loop", "fifo", ...: replace_with)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "good.json").write_text(json.dumps(BASE_WORLD))
+    replace_with(folder / "bad.json", kind, fx)
+
+
 def disk_outcomes(runner: Runner, fx: Fixtures) -> tuple[list[Outcome], list[str]]:
     outs, skipped = [], []
     train = lambda out, *x: ["train", "--quiet", "--out", out, *TINY_CKPT, *x]  # noqa: E731
@@ -1204,6 +1220,20 @@ def disk_outcomes(runner: Runner, fx: Fixtures) -> tuple[list[Outcome], list[str
         "evaluate-config-truncated",
         ["evaluate", "{run}", "--no-figures"],
         prepare=lambda t, run: damage(run / "config.yaml", "truncate"),
+    )
+    # a suite folder whose *.json / *.yaml entry cannot be read: refused naming it (it was left out)
+    for kind, words in (("loop", "is a symlink loop"), ("fifo", "is a FIFO")):
+        case(
+            f"evaluate-suite-folder-with-a-{kind}",
+            ["evaluate", "{run}", "--no-figures", "--suite", "{dir}/rooms"],
+            prepare=lambda t, run, k=kind: suite_folder_with(t.dir / "rooms", k, fx),
+            contains=words,
+        )
+    case(
+        "evaluate-world-symlink-loop",
+        ["evaluate", "{run}", "--no-figures", "--world", "{dir}/loop.json"],
+        prepare=lambda t, run: replace_with(t.dir / "loop.json", "loop", fx),
+        contains="is a symlink loop",
     )
     case("train-out-symlink-loop", train(fx.loop))
     case("train-resume-symlink-loop", ["train", "--resume", fx.loop, "--quiet"])

@@ -156,6 +156,14 @@ def test_the_federated_period_does_not_constrain_methods_without_a_federated_ste
         )
 
 
+def test_a_config_symlink_loop_is_named_as_one(tmp_path):
+    loop = tmp_path / "loop.yaml"
+    loop.symlink_to(loop)
+    with pytest.raises(ConfigError) as e:
+        load_config(loop)
+    assert str(e.value).startswith(f"{loop}: is a symlink loop") and "no such" not in str(e.value), str(e.value)
+
+
 def test_missing_and_malformed_files(tmp_path):
     with pytest.raises(ConfigError, match="no such config file"):
         load_config(tmp_path / "nope.yaml")

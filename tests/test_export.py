@@ -171,6 +171,29 @@ def test_onnx_export_equals_jax_actor(run_dir, jax_actions, tmp_path):
     assert sess.run(["action"], {"obs": obs[:1]})[0].shape == (1, 2)  # dynamic batch
 
 
+def test_the_onnx_graph_guarded_as_docs_export_md_says(run_dir, jax_actions, tmp_path):
+    """The bare graph turns a NaN into a NaN; policy.py's check_observation and stop_unsafe around
+    sess.run (docs/export.md, "Unsafe observations") stop it, and leave a good observation exact."""
+    ort = pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    obs, ref, _ = jax_actions
+    out = _export(run_dir, tmp_path / "onnx", "onnx", seed=FIRST_SEED, agent=1)
+    sess = ort.InferenceSession(str(out / "policy.onnx"), providers=["CPUExecutionProvider"])
+    policy = _load_template(out / "policy.py")
+    meta = json.loads((out / "meta.json").read_text())
+    bad = obs[0].copy()
+    bad[NUM_BEAMS] = np.nan  # the goal distance
+    assert np.isnan(sess.run(["action"], {"obs": bad[None]})[0]).any()  # the bare graph
+    for o, want in ((bad, policy.STOP), (obs[0], sess.run(["action"], {"obs": obs[:1]})[0][0])):
+        x, unsafe = policy.check_observation(o, meta["network"]["obs_size"])
+        action = sess.run(["action"], {"obs": x[None]})[0][0]
+        action, stopped = policy.stop_unsafe(action, unsafe)
+        assert np.array_equal(action, want) and bool(stopped) == (o is bad)
+    assert np.abs(want - ref[1, 0]).max() <= TOL
+    with pytest.raises(ValueError, match="got 27 entries"):
+        policy.check_observation(obs[0, :27], meta["network"]["obs_size"])
+
+
 @pytest.mark.parametrize("activation", ACTIVATIONS)
 def test_every_activation_numpy_and_onnx(activation):
     """The numpy forward pass and the ONNX graph of every activation the config allows."""

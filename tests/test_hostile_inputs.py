@@ -144,11 +144,13 @@ def test_every_int_field_is_held_to_int32_and_every_float_field_to_float32():
 
 
 def test_the_largest_traced_integers_reach_the_program_exactly():
-    cfg = load_config(None, ["offpolicy.train_every=2147483647", "ddpg.target_every=2147483647", "method=iddpg"])
+    # (offpolicy.train_every is bounded by the run too: no run is 2^31 - 1 steps long, test_config.py)
+    cfg = load_config(None, ["offpolicy.random_steps=2147483647", "ddpg.target_every=2147483647", "method=iddpg"])
     hp = hparams_from_config(cfg)
-    assert int(hp.offpolicy.train_every) == 2**31 - 1 and hp.offpolicy.train_every.dtype == dtype(
-        "offpolicy.train_every"
+    assert int(hp.offpolicy.random_steps) == 2**31 - 1 and hp.offpolicy.random_steps.dtype == dtype(
+        "offpolicy.random_steps"
     )
+    assert int(hp.ddpg.target_every) == 2**31 - 1 and hp.ddpg.target_every.dtype == dtype("ddpg.target_every")
 
 
 @pytest.mark.parametrize(

@@ -192,10 +192,13 @@ def test_a_params_file_without_seeds_is_one_line(tmp_path, capfd, command):
 # ----------------------------------------------------------------------------- training
 
 
+# 1000 episodes: a buffer receives 1,024,000 rows, so a batch of 1e6 is drawn (shorter, the run
+# could never update and the config itself is refused: tests/test_config.py)
+BIG_BATCH = ["offpolicy.batch_size=1000000", "offpolicy.buffer_size=1000000", "run.episodes=1000"]
+
+
 def big_batch_config():
-    return load_config(
-        ROOT / "configs/thesis/flddpg.yaml", ["offpolicy.batch_size=1000000", "offpolicy.buffer_size=1000000"]
-    )
+    return load_config(ROOT / "configs/thesis/flddpg.yaml", BIG_BATCH)
 
 
 def test_train_counts_the_update_activations():
@@ -213,7 +216,7 @@ def test_train_refuses_the_big_batch_before_allocating(tmp_path, capfd):
     one_line(
         capfd,
         ["train", "--config", ROOT / "configs/thesis/flddpg.yaml", "--out", out, "--quiet", "--memory-budget", "8G"]
-        + ["--set", "offpolicy.batch_size=1000000", "--set", "offpolicy.buffer_size=1000000"],
+        + [arg for item in BIG_BATCH for arg in ("--set", item)],
         "offpolicy.batch_size = 1000000",
         "activations",
     )

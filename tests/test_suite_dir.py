@@ -8,6 +8,7 @@ ahead (every weight zero, the speed head's bias large), so each room's outcome i
 straight ahead is reached, a wall ahead is hit, a far goal times out."""
 
 import json
+import os
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +20,7 @@ import yaml
 from fedjax_nav import rundir
 from fedjax_nav.cli import main
 from fedjax_nav.config import from_dict, save_config
-from fedjax_nav.evaluation import suite, suite_files
+from fedjax_nav.evaluation import EvalError, suite, suite_files
 
 STEPS = 60  # the time-out: 60 x 0.1 s x 0.25 m/s = 1.5 m of driving
 ROOMS = {  # start 0 faces +x; the constant actor drives straight on
@@ -142,3 +143,50 @@ def test_globs_files_and_folders_select_and_name(evaluated, tmp_path, monkeypatc
     (tmp_path / "probe").mkdir()
     assert not suite.is_file_suite("probe") and suite.suite_folder("probe") == "probe"
     assert not suite.is_file_suite("heldout") and suite.suite_folder("heldout") == "heldout"
+
+
+# ----------------------------------------------------------------------------- entries that cannot be read
+
+
+def _unreadable(folder, kind):
+    """An entry named like a world file that is not one: its path."""
+    if kind == "symlink loop":
+        (folder / "loop.json").symlink_to(folder / "loop.json")
+        return folder / "loop.json", "is a symlink loop"
+    if kind == "dangling link":
+        (folder / "gone.yaml").symlink_to(folder / "missing.yaml")
+        return folder / "gone.yaml", "is a symbolic link to a missing file"
+    if kind == "FIFO":
+        os.mkfifo(folder / "pipe.yml")  # never opened: stat says what it is
+        return folder / "pipe.yml", "is a FIFO, not a regular file"
+    (folder / "sub.json").mkdir()
+    return folder / "sub.json", "is a directory"
+
+
+KINDS = ["symlink loop", "dangling link", "FIFO", "folder"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_an_entry_that_cannot_be_read_refuses_the_suite_naming_it(tmp_path, kind):
+    """Before: it was left out, and the suite reported one room fewer, exit 0."""
+    maps = write_rooms(tmp_path / "maps")
+    bad, words = _unreadable(maps, kind)
+    alone = [] if kind == "folder" else [str(bad)]  # a folder named alone is a suite folder of its own
+    for arg in [str(maps), str(maps / f"*{bad.suffix}"), *alone]:
+        for load in (suite.world_files, suite_files.file_suite):
+            with pytest.raises(EvalError) as e:
+                load(arg)
+            msg = str(e.value)
+            assert msg.startswith(f"{bad}: {words}") and "\n" not in msg, msg
+    bad.unlink() if not bad.is_dir() or bad.is_symlink() else bad.rmdir()
+    assert [f.name for f in suite.world_files(str(maps))] == sorted(ROOMS)  # the rest is a suite again
+
+
+def test_the_cli_refuses_a_suite_folder_with_a_symlink_loop_in_one_line_exit_2(tmp_path, capsys):
+    """Refused before any run is loaded or any program compiled (`evaluate_suite_runs` checks the suite first)."""
+    run, maps = constant_run(tmp_path / "run"), write_rooms(tmp_path / "maps")
+    bad, words = _unreadable(maps, "symlink loop")
+    assert main(["evaluate", str(run), "--suite", str(maps)]) == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(bad) in lines[0] and words in lines[0], lines
+    assert not rundir.eval_dir(run, "maps").exists()

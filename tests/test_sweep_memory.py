@@ -21,7 +21,14 @@ from fedjax_nav.training.trainer import Trainer  # noqa: E402
 plan_module = importlib.import_module("fedjax_nav.training.sweep.plan")  # the package's `plan` is the function
 ROOT = Path(__file__).resolve().parents[1]
 # FLDDPG (5 networks), a buffer no larger than one huge batch: the activations dominate the estimate
-BIG_BATCH = ["offpolicy.batch_size=100000", "offpolicy.buffer_size=100000", "env.episode_length=16", "run.episodes=5"]
+# (100 episodes of 1000 steps: a buffer receives a batch's 100,000 rows; fewer, and the run could
+# never update, which the config refuses)
+BIG_BATCH = [
+    "offpolicy.batch_size=100000",
+    "offpolicy.buffer_size=100000",
+    "env.episode_length=1000",
+    "run.episodes=100",
+]
 
 
 def config(seeds: int, extra=()):

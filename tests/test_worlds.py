@@ -204,6 +204,14 @@ BAD = {
     "negative box size": (_with(boxes=[[1.0, 1.0, -0.6, 0.6, 0.0]]), ["boxes"]),
     "zero radius": (_with(circles=[[-1.0, 1.0, 0.0]]), ["circles"]),
     "non-numeric start": (_with(starts=[["a", 0.0, 0.0]]), ["starts"]),
+    # numpy reads true as 1.0 and parses "3": neither may pass for a number
+    "size of booleans": (_with(size=[True, True]), ["field 'size'", "a boolean (true)", "where a number belongs"]),
+    "size of numbers as text": (_with(size=["3", "3"]), ["field 'size'", "text ('3')", "where a number belongs"]),
+    "size as text": (_with(size="44"), ["field 'size'", "text ('44')"]),
+    "a boolean yaw": (_with(starts=[[0.0, -1.0, False]]), ["starts[0]", "a boolean (false)"]),
+    "a goal as text": (_with(goals=[[-1.0, -1.0], ["-1", "1"]]), ["goals[1]", "text ('-1')"]),
+    "a box of booleans": (_with(boxes=[[1.0, 1.0, True, True, 0.0]]), ["boxes[0]", "a boolean"]),
+    "a null radius": (_with(circles=[[-1.0, 1.0, None]]), ["circles[0]", "null"]),
 }
 
 
@@ -228,6 +236,25 @@ def test_good_world_file_loads(tmp_path):
         path.write_text(json.dumps(GOOD) if fmt == "json" else yaml.safe_dump(GOOD))
         w = worlds.load(path)
         assert w.segments.shape == (8, 4) and int(w.num_starts) == 1
+
+
+def test_a_python_caller_s_numpy_numbers_are_numbers():
+    spec = _with(size=list(np.asarray([4.0, 4.0])), starts=np.asarray([[0.0, -1.0, 0.0]]), goals=[[np.int64(-1), -1]])
+    assert int(worlds.from_dict(spec, "<test>")[0].num_starts) == 1
+    with pytest.raises(WorldError, match=r"a boolean \(true\).*starts\[0\]"):
+        worlds.from_dict(_with(starts=np.asarray([[True, False, True]])), "<test>")
+
+
+def test_a_symlink_loop_is_named_as_one(tmp_path):
+    """Not "no such world file": the path exists as a link that leads nowhere."""
+    loop, dangling = tmp_path / "loop.json", tmp_path / "dangling.yaml"
+    loop.symlink_to(loop)
+    dangling.symlink_to(tmp_path / "gone.yaml")
+    for path, words in ((loop, "is a symlink loop"), (dangling, "is a symbolic link to a missing file")):
+        with pytest.raises(WorldError) as err:
+            worlds.load(str(path))
+        msg = str(err.value)
+        assert msg.startswith(str(path)) and words in msg and "no such" not in msg and "\n" not in msg, msg
 
 
 def test_missing_file_and_unparsable_files(tmp_path):

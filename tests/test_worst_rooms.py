@@ -25,7 +25,7 @@ TINY = [
     "run.episodes=1",
     "run.chunk_episodes=1",
     "run.checkpoint_every=0",
-    "offpolicy.batch_size=8",
+    "offpolicy.batch_size=4",  # an update at step 5 of the run's 8 (offpolicy.train_every = 5)
     "offpolicy.buffer_size=64",
     "offpolicy.hidden=8",
     "offpolicy.depth=1",

@@ -6,7 +6,8 @@
 Subscribes to /scan (sensor_msgs/LaserScan), /odom (nav_msgs/Odometry) and /goal_pose
 (geometry_msgs/PoseStamped, in the odometry frame); publishes /cmd_vel (geometry_msgs/Twist, or
 TwistStamped with use_stamped:=true) every control period (the run's dt, meta.json), and a zero
-command once the robot is within the goal radius (then it waits for the next goal).
+command once the robot is within the goal radius (then it waits for the next goal), and a zero
+command for an observation holding a NaN or an infinity (policy.py's `last_unsafe`).
 
 All conversions (scan pooling, the observation, the actor, action -> velocities) are the exported
 folder's policy.py; this file only moves messages. NOT TESTED: no ROS on the machines this was
@@ -155,7 +156,14 @@ class PolicyNode(Node):
             mode=self.pooling,
         )
         obs = self.policy.observation(ranges, self.pose, self.goal, self.prev_action)
-        action = self.policy(obs)
+        action = self.policy(obs)  # NaN/inf anywhere in obs: the stop command, flagged (policy.py)
+        if self.policy.last_unsafe:
+            self.get_logger().warn(
+                "non-finite observation (NaN/inf from the odometry or the goal): stopping", throttle_duration_sec=2.0
+            )
+            self.publish(0.0, 0.0)
+            self.prev_action = (0.0, 0.0)
+            return
         v, omega = self.policy.velocity(action)
         v = min(v, self.max_linear)
         omega = max(-self.max_angular, min(omega, self.max_angular))

@@ -9,21 +9,25 @@ This file is copied into every exported folder by `fedjax-nav export` (it is
                                 msg.range_min, msg.range_max)          # a sensor_msgs/LaserScan
     obs = policy.observation(ranges, (x, y, yaw), (goal_x, goal_y), prev_action)
     action = policy(obs)                            # (v / v_max, omega / omega_max)
+    if policy.last_unsafe: ...                      # NaN/inf in obs: action is the stop command (0, 0)
     v, omega = policy.velocity(action)              # m/s, rad/s  -> geometry_msgs/Twist
     policy.reset()                                  # at a new goal (an episode's start)
+
+Safety (docs/export.md, "Unsafe observations"): a wrong-length observation is a ValueError naming
+both sizes; a row with a NaN or +-inf in any entry (or whose action is not finite) gets the stop
+command `STOP` = (0, 0), is flagged in `policy.last_unsafe` and leaves a recurrent state as it was.
 
 Networks (meta.json's network.kind, one per learner's greedy actor):
 
 - "heads" (DDPG, TD3): depth x (Dense + activation), then two 1-unit heads, sigmoid (v / v_max)
   and tanh (omega / omega_max). `actor_forward`.
 - "squashed" (SAC, feed-forward PPO): depth x (Dense + activation), then a 2-unit mean, squashed
-  into the box: (0.5 + 0.5 tanh(mean_v), tanh(mean_omega)), the squashed Gaussian's mode.
-  `squashed_forward`.
+  into the box: (0.5 + 0.5 tanh(mean_v), tanh(mean_omega)), the Gaussian's mode. `squashed_forward`.
 - "gru" (recurrent PPO): Dense + activation, a GRU cell (flax's GRUCell) on the hidden state h,
   (depth - 1) x (Dense + activation), the 2-unit mean, squashed as above. `gru_forward(weights,
   obs, h) -> (action, h)`. `Policy` keeps h between calls: zeros at the start and after
   `reset()`, which a robot calls at every new goal (the simulator's episode start, where
-  training reset it). Without a memory (the other kinds) `reset()` does nothing.
+  training reset it), one state per batch shape. Without a memory `reset()` does nothing.
 
 Observation normalisation (a PPO run with ppo.normalize_obs): weights.npz then also holds
 "obs_norm/mean", "obs_norm/std" [obs_size] and "obs_norm/clip" [], the running statistics the
@@ -40,29 +44,11 @@ Conventions (the simulator's, fedjax_nav.env.nav / fedjax_nav.env.geometry):
   counter-clockwise positive), and the previous action in network units.
 - Action (the network's output and units): (v / v_max in [0, 1], omega / omega_max in [-1, 1]);
   v_max (m/s) and omega_max (rad/s) are the run's, in meta.json.
-- Scan pooling (`pool_scan`): a laser scan with more samples than the policy has beams is reduced
-  to one range per beam. Beam i's sector is the samples whose angle lies in
-  [beam angle - pi / num_beams, beam angle + pi / num_beams); with a 360-sample scan and 24 beams
-  each sector holds 15 samples, the beam's own direction among them.
-  mode="min" (default): the sector minimum. Never longer than the exact beam (the nearer obstacle
-  wins), so the robot sees obstacles a thin beam would miss; but it is not what the policy was
-  trained on: a wall seen at a slant, or an obstacle edge inside the sector, reads shorter than
-  the simulator's ray (measured on three shipped worlds: median 4-7 cm shorter, the 10 % worst
-  beams 0.8-1.1 m or more shorter; docs/export.md).
-  mode="nearest": the valid sample nearest the beam's angle, a thin ray like the simulator's
-  (identical to it when the scan has a sample at every beam angle, as 360 samples do).
-- Invalid scan values, as the simulator would see them:
-    +inf, or a finite value above range_max   -> no return: max_range (the simulator's reading
-                                                  when nothing is within range);
-    NaN, -inf, 0, negative, or below range_min -> no information: left out of the sector minimum
-                                                  (`invalid=None`, the default); a sector with no
-                                                  valid sample reads max_range. Pass e.g.
-                                                  `invalid=0.0` to count them as that range instead
-                                                  (conservative: an unreadable sector looks blocked).
-  Rationale: the simulator's robot never gets closer than the collision distance (0.25 m by
-  default) to an obstacle, while range_min of a TurtleBot3 LDS is about 0.12 m; readings below
-  range_min, and 0 / NaN (what LDS drivers report for no echo), are dropouts or the robot's own
-  body, not obstacles the policy was trained to react to.
+- Scan pooling (`pool_scan`): a scan with more samples than beams is reduced to one range per
+  beam, the sector minimum (mode="min", default: never longer than the exact beam, but shorter
+  than the simulator's ray where the range changes within the sector: median 4-7 cm, the 10 %
+  worst beams 0.8-1.1 m or more on three shipped worlds) or the valid sample nearest the beam's
+  angle (mode="nearest", a thin ray like the simulator's); invalid samples: `pool_scan`.
 """
 
 from __future__ import annotations
@@ -75,7 +61,10 @@ import numpy as np
 
 __all__ = [
     "ACTIVATIONS",
+    "STOP",
     "Policy",
+    "check_observation",
+    "stop_unsafe",
     "actor_forward",
     "squashed_forward",
     "gru_forward",
@@ -140,13 +129,7 @@ def actor_forward(weights: dict, obs, activation: str = "relu") -> np.ndarray:
     weights: "hidden_{i}/kernel" [in, hidden], "hidden_{i}/bias" [hidden] for i < depth, and
     "v_head/kernel" [hidden, 1], "v_head/bias" [1], "omega_head/kernel", "omega_head/bias".
     """
-    if activation not in ACTIVATIONS:
-        raise ValueError(f"unknown activation {activation!r} (known: {', '.join(ACTIVATIONS)})")
-    act = ACTIVATIONS[activation]
-    x = normalize_input(weights, obs)
-    depth = sum(1 for k in weights if k.startswith("hidden_") and k.endswith("/kernel"))
-    for i in range(depth):
-        x = act(x @ weights[f"hidden_{i}/kernel"] + weights[f"hidden_{i}/bias"])
+    x = _trunk(weights, normalize_input(weights, obs), _activation(activation))
     v = _sigmoid(x @ weights["v_head/kernel"] + weights["v_head/bias"])
     w = np.tanh(x @ weights["omega_head/kernel"] + weights["omega_head/bias"])
     return np.concatenate([v, w], axis=-1).astype(np.float32)
@@ -209,6 +192,31 @@ def gru_forward(weights: dict, obs, h, activation: str = "tanh") -> tuple[np.nda
 INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}
 
 
+# ----------------------------------------------------------------------------- unsafe observations
+
+STOP = np.zeros(2, np.float32)  # the command for an observation that cannot be trusted: v = omega = 0
+
+
+def check_observation(obs, obs_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(obs float32[..., obs_size] with its unsafe rows zeroed, so that a batch's pass stays finite;
+    unsafe bool[...]: a NaN or +-inf, float32's, in the row). Another length: a ValueError."""
+    with np.errstate(over="ignore"):  # a float64 beyond float32 becomes inf: unsafe
+        x = np.asarray(obs, np.float32)
+    if x.ndim == 0 or x.shape[-1] != obs_size:
+        got = "a scalar" if x.ndim == 0 else f"{x.shape[-1]} entries (shape {list(x.shape)})"
+        what = "num_beams ranges, goal distance, goal bearing, previous action v and omega"
+        raise ValueError(f"an observation has {obs_size} entries ({what}); got {got}")
+    unsafe = ~np.all(np.isfinite(x), axis=-1)
+    return np.where(unsafe[..., None], np.float32(0.0), x), unsafe
+
+
+def stop_unsafe(action, unsafe) -> tuple[np.ndarray, np.ndarray]:
+    """(action float32[..., 2] with `STOP` in each unsafe row and each row not finite, the rows stopped)."""
+    a = np.asarray(action, np.float32)
+    stopped = np.asarray(unsafe, bool) | ~np.all(np.isfinite(a), axis=-1)
+    return np.where(stopped[..., None], STOP, a), stopped
+
+
 # ----------------------------------------------------------------------------- observations
 
 
@@ -233,7 +241,9 @@ def pool_scan(
     between two beams is seen). mode="nearest": the beam reads the valid sample nearest its angle
     (a thin ray, like the simulator's own beams; equal to them when the scan has a sample at each
     beam angle). Either way the reading is clipped to max_range, and a sector with no valid sample
-    reads max_range; see the module docstring for inf / NaN / 0 / below-range_min (`invalid`).
+    reads max_range. Invalid samples: +inf or above range_max is no return (max_range); NaN, -inf,
+    0, negative or below range_min is no information (a dropout, the robot's body: the simulated
+    robot never comes within 0.25 m), left out (`invalid=None`) or read as the range `invalid`.
     """
     if mode not in ("min", "nearest"):
         raise ValueError(f"mode must be 'min' or 'nearest', got {mode!r}")
@@ -310,8 +320,12 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
 
 
 def action_to_velocity(action, v_max: float, omega_max: float) -> tuple[float, float]:
-    """Network units -> (v m/s, omega rad/s), after clipping to the box as the simulator does."""
-    a = np.clip(np.asarray(action, np.float64).reshape(-1)[:2], [0.0, -1.0], [1.0, 1.0])
+    """Network units -> (v m/s, omega rad/s), after clipping to the box as the simulator does; an
+    action with a NaN or an infinity is no command: (0.0, 0.0)."""
+    a = np.asarray(action, np.float64).reshape(-1)[:2]
+    if not np.all(np.isfinite(a)):
+        return 0.0, 0.0
+    a = np.clip(a, [0.0, -1.0], [1.0, 1.0])
     return float(a[0] * v_max), float(a[1] * omega_max)
 
 
@@ -334,9 +348,9 @@ def load_weights(folder: str | None = None) -> dict:
 class Policy:
     """The exported actor with the run's settings (meta.json) and its observation helpers.
 
-    A recurrent policy (network kind "gru") keeps its hidden state `h` between calls: zeros at
-    the start and after `reset()` (call it at every new goal). `reset()` is there for every kind,
-    so that a robot's loop need not know which one it runs."""
+    A recurrent policy ("gru") keeps a hidden state per batch shape (`h`: the last call's), zeros at
+    the start and after `reset()` (at every new goal; a no-op for the other kinds). An unsafe row
+    (NaN, +-inf) gets `STOP`, keeps its state and is flagged in `last_unsafe`."""
 
     def __init__(self, folder: str | None = None, weights: dict | None = None, meta: dict | None = None):
         self.folder = folder or HERE
@@ -362,23 +376,32 @@ class Policy:
                 f"{self.folder}: weights take {k.shape[0]} inputs, meta.json says "
                 f"num_beams={self.num_beams} (obs size {self.obs_size})"
             )
-        # the hidden state's size (0: no memory)
-        self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0
+        self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0  # 0: none
         self.reset()
 
     def reset(self) -> None:
-        """An episode's start (a new goal): the hidden state back to zeros (no-op without one)."""
+        """An episode's start (a new goal): every hidden state back to zeros (no-op without one)."""
+        self.states = {}  # the batch's leading shape -> its hidden state float32[*shape, memory_size]
         self.h = np.zeros(self.memory_size, np.float32)
+        self.last_unsafe = False
 
     def __call__(self, obs) -> np.ndarray:
-        """obs float32[..., obs_size] -> action float32[..., 2] in network units; a recurrent
-        policy advances its hidden state (batched obs: one state per row after the first call)."""
-        if self.kind == "gru":
-            action, self.h = gru_forward(self.weights, obs, self.h, self.activation)
-            return action
-        if self.kind == "squashed":
-            return squashed_forward(self.weights, obs, self.activation)
-        return actor_forward(self.weights, obs, self.activation)
+        """obs float32[..., obs_size] -> action float32[..., 2] in network units (the class docstring
+        for the state and unsafe rows); another length is a ValueError (`check_observation`)."""
+        x, unsafe = check_observation(obs, self.obs_size)
+        lead = x.shape[:-1]
+        h = self.states.get(lead, np.zeros((*lead, self.memory_size), np.float32))
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge input may overflow: stopped below
+            if self.kind == "gru":
+                action, h_next = gru_forward(self.weights, x, h, self.activation)
+                unsafe = unsafe | ~np.all(np.isfinite(h_next), axis=-1)
+            else:
+                forward = squashed_forward if self.kind == "squashed" else actor_forward
+                action, h_next = forward(self.weights, x, self.activation), h
+        action, stopped = stop_unsafe(action, unsafe)
+        self.h = self.states[lead] = np.where(stopped[..., None], h, h_next)  # a stopped row keeps its state
+        self.last_unsafe = bool(stopped) if stopped.ndim == 0 else stopped
+        return action
 
     act = __call__
 

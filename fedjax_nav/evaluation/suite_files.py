@@ -14,7 +14,7 @@ import numpy as np
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.messages import show
-from fedjax_nav.worlds import WorldError
+from fedjax_nav.worlds import WorldError, input_files
 from fedjax_nav.worlds.suites import SUITE_GROUPS, SUITES, suite_rooms
 
 WORLD_SUFFIXES = (".json", ".yaml", ".yml")  # the world files of a folder (worlds.load's formats)
@@ -49,17 +49,27 @@ def suite_folder(suite: str) -> str:
 
 
 def world_files(suite: str) -> list[Path]:
-    """The world files of a file suite, sorted: a folder's regular files named *.json, *.yaml, *.yml
-    (not recursive), or those among a glob's matches. None: an EvalError naming the folder or glob."""
+    """The world files of a file suite, sorted: a folder's entries named *.json, *.yaml, *.yml (not
+    recursive), or those among a glob's matches. None: an EvalError naming the folder or glob. An
+    entry so named that is not a regular file (a symlink loop, a link to a missing file, a FIFO, a
+    folder, ...) is not left out: an EvalError naming it (docs/evaluation.md: a file that does not
+    load refuses the suite; a suite with a room missing would report fewer rooms)."""
     p = Path(suite)
     try:
         folder = p.is_dir()
         found = p.iterdir() if folder else (Path(f) for f in glob.glob(suite))
-        files = sorted(f for f in found if f.suffix.lower() in WORLD_SUFFIXES and f.is_file())
+        files = sorted(f for f in found if f.suffix.lower() in WORLD_SUFFIXES)
     except (OSError, ValueError) as e:  # a folder that cannot be listed, a NUL byte, an over-long name
         why = getattr(e, "strerror", None) or type(e).__name__
         msg = f"--suite {show(suite, 240)}: cannot be read as a folder or glob of world files ({why})"
         raise EvalError(msg) from None
+    for f in files:
+        try:
+            input_files.check_regular(f, "world")
+        except input_files.InputError as e:
+            raise EvalError(
+                f"{f}: {e} (--suite {show(suite, 240)}: every *.json, *.yaml, *.yml there is read as a room)"
+            ) from None
     if not files:
         kinds = ", ".join(f"*{x}" for x in WORLD_SUFFIXES)
         where = "in this folder" if folder else "matches this folder, glob or file"

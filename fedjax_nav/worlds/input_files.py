@@ -22,6 +22,7 @@ the file (or `--set key`) and raises its own error type (`ConfigError`, `WorldEr
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import stat
@@ -56,6 +57,43 @@ def _not_regular(mode: int, kind: str) -> InputError:
     return InputError(f"is {what}, not a regular file; a {kind} file must be a regular file")
 
 
+def missing_link(path: str | Path) -> str | None:
+    """Why a path that `Path.exists` calls absent is a symbolic link that leads nowhere: "is a
+    symlink loop (...)" or "is a symbolic link to a missing file (...)"; None for a plain missing
+    path (or one that exists)."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return f"is a symlink loop ({e.strerror})"
+        if os.path.islink(path):
+            return f"is a symbolic link to a missing file ({e.strerror})"
+    except ValueError:
+        pass
+    return None
+
+
+def _os_error(e: OSError) -> InputError:
+    """An OSError of stat or open as the reason an input cannot be read (a loop named as one)."""
+    if e.errno == errno.ELOOP:
+        return InputError(f"is a symlink loop ({e.strerror})")
+    return InputError(f"cannot be read ({e.strerror or type(e).__name__})")
+
+
+def check_regular(path: str | Path, kind: str) -> None:
+    """An InputError unless `path` is a regular file (after symbolic links): a directory, a FIFO, a
+    device, a socket, a symlink loop, a link to a missing file or a missing path are each named."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        why = missing_link(path)
+        raise (InputError(why) if why else _os_error(e)) from None
+    except ValueError as e:  # a NUL byte in the name
+        raise InputError(f"cannot be read ({type(e).__name__})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise _not_regular(st.st_mode, kind)
+
+
 def read_bytes(path: str | Path, kind: str, max_bytes: int) -> bytes:
     """The content of the regular file `path`, at most `max_bytes` bytes long.
 
@@ -74,8 +112,8 @@ def read_bytes(path: str | Path, kind: str, max_bytes: int) -> bytes:
             if not stat.S_ISREG(mode):
                 raise _not_regular(mode, kind)
             data = f.read(max_bytes + 1)  # a file that grows (or /proc's size-0 files) is still bounded
-    except OSError as e:  # permission denied, a name too long, I/O errors, ...
-        raise InputError(f"cannot be read ({e.strerror or type(e).__name__})") from None
+    except OSError as e:  # permission denied, a name too long, a symlink loop, I/O errors, ...
+        raise _os_error(e) from None
     except ValueError as e:  # a NUL byte in the name
         if isinstance(e, InputError):
             raise

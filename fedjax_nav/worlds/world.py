@@ -110,8 +110,42 @@ def _array(spec: dict, field: str, ncol: int, src: str, required: bool) -> np.nd
         raise WorldError(
             f"{src}: field '{field}' has {len(arr)} rows; at most {MAX_PRIMITIVES} are allowed per world file"
         )
+    _check_types(spec[field], field, src)
     _check_numbers(arr, field, src)
     return arr
+
+
+def _check_types(value, field: str, src: str) -> None:
+    """Every entry of a numeric field (`value` as the file gave it, already known to convert) is a
+    number: numpy would read true and false as 1.0 and 0.0 and parse a string ("3"), so neither
+    passes as one (docs/worlds.md). One WorldError naming the row (of a field of rows) otherwise."""
+    todo = [((), value)]
+    while todo:
+        at, v = todo.pop()
+        if isinstance(v, np.ndarray) and v.dtype.kind in "iuf":
+            continue
+        if isinstance(v, np.ndarray):  # booleans, text or objects: look at each entry
+            v = v.tolist()
+        if isinstance(v, (list, tuple)):
+            todo.extend(((*at, i), x) for i, x in reversed(list(enumerate(v))))
+            continue
+        if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+            continue
+        where = f"{field}[{at[0]}]" if at and field != "size" else field
+        row = value if where == field else value[at[0]]
+        if isinstance(v, (bool, np.bool_)):
+            what = f"a boolean ({str(bool(v)).lower()})"
+        else:
+            what = f"text ({show(v)})" if isinstance(v, (str, bytes)) else "null" if v is None else show(v)
+        raise WorldError(
+            f"{src}: field '{field}' holds {what} where a number belongs ({where} = {show(_plain(row))}); "
+            "allowed: numbers (m, or rad for an angle)"
+        )
+
+
+def _plain(value):
+    """A numpy array as the list it holds (for an error message), anything else as it is."""
+    return value.tolist() if isinstance(value, np.ndarray) else value
 
 
 def _check_numbers(arr: np.ndarray, field: str, src: str) -> None:
@@ -162,6 +196,7 @@ def from_dict(spec: dict, src: str = "<dict>") -> tuple[World, dict]:
         size = np.asarray(spec["size"], dtype=np.float64).reshape(-1)
     except (TypeError, ValueError, OverflowError, RecursionError):
         raise WorldError(f"{src}: field 'size' must be [width, height] in m") from None
+    _check_types(spec["size"], "size", src)
     if size.shape != (2,) or not np.all(size > 0) or not np.all(np.isfinite(size)):
         raise WorldError(f"{src}: field 'size' must be [width, height] with both > 0, got {show(spec['size'])}")
     _check_numbers(size, "size", src)
@@ -254,6 +289,8 @@ def resolve(name_or_path: str | Path) -> Path:
         why = getattr(e, "strerror", None) or type(e).__name__
         raise WorldError(f"{show(name, 240)}: cannot be read as a world file ({why})") from None
     if not exists:
+        if why := input_files.missing_link(path):  # a symlink loop is not "no such file"
+            raise WorldError(f"{shorten(name, 240)}: {why}; not a world file")
         raise WorldError(
             f"{shorten(name, 240)}: no such world file, and not a shipped world (shipped: {', '.join(SHIPPED)})"
         )
