@@ -245,11 +245,10 @@ def run_dir(path: str | Path, need: tuple[str, ...] = (CONFIG,)) -> Path:
 
 
 def read_config(run: str | Path):
-    """The run's resolved Config (ConfigError names the file and the field); a run that could never
-    update is read back all the same (it was trained: `config.validate.check`'s `learns`)."""
+    """The run's resolved Config (ConfigError names the file and the field)."""
     from fedjax_nav.config import load_config
 
-    return load_config(run_dir(run) / CONFIG, learns=False)
+    return load_config(run_dir(run) / CONFIG)
 
 
 def read_metrics(run: str | Path, columns: list[str] | None = None):

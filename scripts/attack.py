@@ -557,9 +557,6 @@ SET_VALUES = {
     "buffer-1e8": "offpolicy.buffer_size=100000000",
     "batch-1e6": "offpolicy.batch_size=1000000",
     "room-spec-fixed": "env.room_spec=walls_max=2",
-    # runs that could never update (TINY: 3 x 64 = 192 steps): refused, not trained with every loss 0
-    "batch-beyond-run": "offpolicy.batch_size=256",  # a buffer holds 190 rows at the last update (step 190)
-    "train-every-beyond-run": "offpolicy.train_every=193",
     "seed-int32": "run.seed=2147483647",
 }
 # Config files (train --config): each refused.
@@ -576,7 +573,6 @@ CONFIG_TEXTS = {
     "a-date": "offpolicy:\n  gamma: 2024-01-01\n",
     "old-name-a-date": "ddpg:\n  gamma: 2024-01-01\n",  # an offpolicy field by its old name
     "old-and-new-name": "ddpg:\n  gamma: 0.9\noffpolicy:\n  gamma: 0.8\n",  # one field, two values
-    "ppo-rollout-beyond-run": "learner: ppo\nppo:\n  rollout: 256\n",  # TINY's run is 192 steps: no update
     "30mb-string": None,  # written below: 30 MB
 }
 # Sweep files (sweep FILE): each refused.

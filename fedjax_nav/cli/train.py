@@ -129,7 +129,7 @@ def _resumed_config(args: argparse.Namespace, overrides: list[str]):
             else f"{args.resume} is not a run directory"
         )
         raise UserError(f"{saved_path}: missing; {why}")
-    cfg = load_config(saved_path, learns=False)  # the run as it was started; a change is checked in full
+    cfg = load_config(saved_path)  # the run as it was started
     if args.config or overrides:
         asked = load_config(args.config or saved_path, overrides)
         chunk = cfg.run.chunk_episodes

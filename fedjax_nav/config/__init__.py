@@ -56,7 +56,7 @@ from fedjax_nav.config.schema import (
     traced_fields,
     values,
 )
-from fedjax_nav.config.validate import check, from_dict, resolve_aliases
+from fedjax_nav.config.validate import check, from_dict, never_updates, resolve_aliases
 
 __all__ = [
     "ATTACKS",
@@ -83,6 +83,7 @@ __all__ = [
     "apply_overrides",
     "canonical",
     "check",
+    "never_updates",
     "diff",
     "field_info",
     "from_dict",

@@ -139,19 +139,19 @@ def parse_yaml(text: str, src: str) -> Any:
         raise ConfigError(f"{src}: {e}") from None
 
 
-def load_config(path: str | Path | None = None, overrides: list[str] | None = None, learns: bool = True) -> Config:
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
     """The config of a file or shipped name (`thesis/flddpg`), with `section.key=value` overrides.
 
     An error in a value given by `--set` names `--set` and the key as given (`--set: offpolicy.gamma: ...`,
     or `--set offpolicy.gamma: not valid YAML ...`); one in the file names the file; a cross-field error
-    names the file "(with --set)". `learns=False`: a run's saved config read back (`validate.check`)."""
+    names the file "(with --set)"."""
     path = locate(path, "config") if path else None
     data = read_yaml(path) if path else {}
     src = str(path) if path else "<defaults>"
     if not overrides:
-        return from_dict(data, src, learns=learns)
+        return from_dict(data, src)
     data = apply_overrides(data, overrides, base=src)
-    return from_dict(data, src, overridden=overridden_keys(overrides), learns=learns)
+    return from_dict(data, src, overridden=overridden_keys(overrides))
 
 
 def save_config(cfg: Config, path: str | Path) -> None:

@@ -161,12 +161,12 @@ def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, 
     return out, written
 
 
-def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (), learns: bool = True) -> Config:
+def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = ()) -> Config:
     """A validated Config from a config mapping read from `src`.
 
     `overridden`: the dotted keys given by `--set` (`io.load_config`); an error in one of their
     values names `--set`, one in any other value names `src`, and a cross-field error names
-    `src (with --set)`. `learns=False`: a run's saved config read back (`check`)."""
+    `src (with --set)`."""
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: a config must be a mapping with keys {', '.join((*TOP_LEVEL, *SECTIONS))}")
     overridden = {canonical(k) for k in overridden}
@@ -185,7 +185,7 @@ def from_dict(data: dict, src: str = "<config>", overridden: Collection[str] = (
         if name in data:
             kwargs[name] = _coerce(data[name], top[name], f"{where(name)}: {name}")
     cfg = fit_run_sizes(Config(**kwargs), overridden)
-    check(cfg, f"{src} (with --set)" if overridden else src, learns)
+    check(cfg, f"{src} (with --set)" if overridden else src)
     return cfg
 
 
@@ -219,10 +219,8 @@ def fit_run_sizes(cfg: Config, overridden: Collection[str]) -> Config:
     return dataclasses.replace(cfg, run=dataclasses.replace(r, chunk_episodes=chunk, checkpoint_every=every))
 
 
-def check(cfg: Config, src: str = "<config>", learns: bool = True) -> None:
-    """Cross-field checks (each names the fields involved). `learns=False` leaves out the refusal of
-    a run that could never update (`_check_updates`): for a run's saved config read back, to
-    evaluate, export or resume what was trained, not to choose what to train (docs/reliability.md)."""
+def check(cfg: Config, src: str = "<config>") -> None:
+    """Cross-field checks (each names the fields involved)."""
     if msg := robot_problem(cfg.robot, cfg.env.num_beams):
         raise ConfigError(f"{src}: {msg}")
     d = cfg.offpolicy
@@ -254,8 +252,6 @@ def check(cfg: Config, src: str = "<config>", learns: bool = True) -> None:
     _check_learner(cfg, src)
     _check_rooms(cfg, src)
     _check_learnability(cfg, src)
-    if learns:
-        _check_updates(cfg, src)
     if cfg.run.episodes % cfg.run.chunk_episodes:
         raise ConfigError(
             f"{src}: run.episodes ({cfg.run.episodes}) must be a multiple of run.chunk_episodes "
@@ -298,9 +294,11 @@ def _check_learner(cfg: Config, src: str) -> None:
             raise ConfigError(f"{src}: ppo.minibatches ({p.minibatches}) must divide {what} ({rows})")
 
 
-def _check_updates(cfg: Config, src: str) -> None:
-    """A run in which the learner could never update its networks (docs/reliability.md, "Runs that
-    cannot learn"), from its row of the learner table: an update event follows step g (0-based,
+def never_updates(cfg: Config) -> str | None:
+    """Why the learner of this run could never update its networks, or None (docs/reliability.md,
+    "Runs that cannot learn"): a warning, not a refusal, since a run that only drives (a smoke run
+    of the pipeline) is a use; `training.run.train` prints it before training. From its row of
+    the learner table: an update event follows step g (0-based,
     per environment) when g + 1 is a multiple of the row's `update_every` field (ppo.rollout,
     offpolicy.train_every: `due` in agents/learners.py and agents/learner_ppo.py), and, for a
     learner with a replay buffer, once that buffer has received a batch, (g + 1) x rows per step
@@ -312,23 +310,24 @@ def _check_updates(cfg: Config, src: str) -> None:
     whole = f"run.episodes x env.episode_length = {steps:,} steps per environment"
     every = get(cfg, row.update_every)
     if every > steps:
-        raise ConfigError(
-            f"{src}: {row.update_every} ({every:,} steps) is longer than the whole run ({whole}); "
-            "no update would ever happen"
+        return (
+            f"{row.update_every} ({every:,} steps) is longer than the whole run ({whole}); "
+            f"no update will happen: lower {row.update_every} or raise run.episodes"
         )
     if row.on_policy:
-        return
+        return None
     shared = METHODS[cfg.method].shared_buffer
     rows = cfg.env.envs_per_robot * (cfg.num_robots if shared else 1)
     last = steps // every * every  # steps done at the run's last update event
     if last * rows < cfg.offpolicy.batch_size:
         per = "env.envs_per_robot" + (" x robots, one shared buffer" if shared else "")
-        raise ConfigError(
-            f"{src}: offpolicy.batch_size ({cfg.offpolicy.batch_size:,}) is more than the rows a replay buffer "
+        return (
+            f"offpolicy.batch_size ({cfg.offpolicy.batch_size:,}) is more than the rows a replay buffer "
             f"has received at the run's last update event ({last:,} steps x {rows} per step ({per}) = "
             f"{last * rows:,}; {whole}, an update every {row.update_every} = {every}); "
-            "no update would ever happen"
+            "no update will happen: lower offpolicy.batch_size or raise run.episodes"
         )
+    return None
 
 
 def _check_n_step(cfg: Config, src: str, method, on_policy: bool) -> None:

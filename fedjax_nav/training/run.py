@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav import rundir
-from fedjax_nav.config import Config
+from fedjax_nav.config import Config, never_updates
 from fedjax_nav.runlock import RunLock
 from fedjax_nav.training import preflight
 from fedjax_nav.training.hparams import HParams, hparams_from_config
@@ -75,6 +75,8 @@ def train(
     trainer = Trainer(cfg, pad=parallel.client_padding(mesh, cfg.num_robots))  # masked clients fill the devices
     check_memory(trainer, memory_budget, src)
     writer = parallel.is_writer()
+    if writer and (why := never_updates(cfg)):  # a run that only drives (a smoke run): said, not refused
+        print(f"warning: {why}", file=sys.stderr, flush=True)
     args = (cfg, out, trainer, progress, hp, resume, mesh, overwrite, allow_config_change, writer, from_checkpoint)
     if not writer:
         return _train(*args)
