@@ -7,6 +7,7 @@ one NavEnv configuration reuses one compiled `step`.
 
 import json
 import os
+from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # A persistent compilation cache shared by the test process and the subprocesses it starts
@@ -49,10 +50,32 @@ HEAVY_FILES = (
 )
 
 
+# The full tier (docs/benchmarks.md, "The test suite: two tiers"): the tests that took 10 s or more
+# in a cold run on the 2-core reference VM, and the files that start other processes or devices,
+# listed in tests/full_tier.txt (written by scripts/test_tiers.py from that run's junit report).
+# pyproject's addopts leave them out (`-m "not full"`): the README's test command stays under 15
+# minutes on a fresh machine; `pytest -m full` runs them, and .ci/run runs both tiers.
+FULL_TIER = frozenset(
+    line.strip()
+    for line in (Path(__file__).parent / "full_tier.txt").read_text().splitlines()
+    if line.strip() and not line.startswith("#")
+)
+
+
+@pytest.hookimpl(tryfirst=True)  # the markers must be on the items before `-m` deselects
 def pytest_collection_modifyitems(config, items):
-    """Heavy files first (HEAVY_FILES), each file's tests in their own order."""
+    """The full tier's marker (FULL_TIER); heavy files first (HEAVY_FILES), each file's tests in their own order."""
+    for item in items:
+        if f"{item.path.name}::{item.name}" in FULL_TIER:
+            item.add_marker(pytest.mark.full)
     rank = {name: i for i, name in enumerate(HEAVY_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FILES)))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """Say where the deselected full tier went (an easy thing to forget when a file runs alone)."""
+    if "not full" in (config.getoption("markexpr") or "") and terminalreporter.stats.get("deselected"):
+        terminalreporter.write_line("the full tier (tests/full_tier.txt) was left out: `pytest -m full` runs it")
 
 
 def sigint_at_default() -> None:
