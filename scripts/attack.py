@@ -381,6 +381,7 @@ def bases(fx: Fixtures) -> dict[str, dict]:
         "bench": {"pos": ["env"], "flags": {"--quick": None}},
         "export": {"pos": ["{dir}/run"], "flags": {"--out": "{dir}/exp"}, "timeout": 120},
         "worlds generate": {"pos": [], "flags": {"--family": "cylinders", "--seed": "1", "--out": "{dir}/w.json"}},
+        "worlds import": {"pos": [str(ROOT / "examples" / "maps" / "flat.yaml")], "flags": {"--out": "{dir}/w.json"}},
         "configs": {"pos": [], "flags": {}},
     }
 
@@ -409,7 +410,7 @@ VALUES = {
     "path_out": ["file", "loop", "under_file", LONG, ""],
 }
 INPUT_FILES = {("train", "config"), ("train", "resume"), ("evaluate", "world"), ("evaluate", "run_dirs")}
-INPUT_FILES |= {("render", "worlds"), ("sweep", "file"), ("export", "run_dir")}
+INPUT_FILES |= {("render", "worlds"), ("sweep", "file"), ("export", "run_dir"), ("worlds import", "map")}
 # Bad values a flag may accept (exit 0 is then fine; a refusal must still be one line): a value of
 # a flag that is ignored without --distributed, a seed, a zero noise level, an empty config file.
 ACCEPTS = {
@@ -423,6 +424,7 @@ ACCEPTS = {
     ("render", "--seed"): {"-1", "0"},
     ("export", "--agent"): {"0"},
     ("worlds generate", "--out"): {"file"},
+    ("worlds import", "--out"): {"file"},
 }
 SKIP = {("bench", "--record", None)}  # would run a benchmark first
 

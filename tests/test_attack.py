@@ -170,28 +170,6 @@ def test_values_beyond_what_the_program_takes_are_one_line(capfd, argv, needle):
     one_line(capfd, argv, needle)
 
 
-@pytest.mark.parametrize(
-    "name, field",
-    [
-        ("batch-beyond-run", "offpolicy.batch_size (256)"),
-        ("train-every-beyond-run", "offpolicy.train_every (193 steps)"),
-        ("ppo-rollout-beyond-run", "ppo.rollout (256 steps)"),
-    ],
-)
-def test_the_battery_s_runs_that_could_never_update_are_one_line_before_training(tmp_path, capfd, name, field):
-    """Before: trained to the end with every loss 0, exit 0. Now refused by the config check: one
-    line naming the field, nothing written."""
-    out = tmp_path / "run"
-    argv = ["train", "--quiet", "--out", out, *attack.TINY]
-    if name in attack.SET_VALUES:
-        argv += ["--set", attack.SET_VALUES[name]]
-    else:
-        (tmp_path / "c.yaml").write_text(attack.CONFIG_TEXTS[name])
-        argv += ["--config", tmp_path / "c.yaml"]
-    one_line(capfd, argv, field, "no update would ever happen")
-    assert not out.exists()
-
-
 def test_an_out_path_that_cannot_be_a_folder_is_bad_input(tmp_path, capfd):
     """A file, a path below a file: exit 2 (before: 4, "a write failed", and for evaluate and
     render a hint about checkpoints they do not have)."""
