@@ -18,6 +18,7 @@ and what is allowed.
 
 from __future__ import annotations
 
+from fedjax_nav.config.checks import check, never_updates
 from fedjax_nav.config.io import (
     apply_overrides,
     diff,
@@ -56,7 +57,7 @@ from fedjax_nav.config.schema import (
     traced_fields,
     values,
 )
-from fedjax_nav.config.validate import check, from_dict, never_updates, resolve_aliases
+from fedjax_nav.config.validate import from_dict, resolve_aliases
 
 __all__ = [
     "ATTACKS",
