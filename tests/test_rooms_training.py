@@ -241,3 +241,25 @@ def test_curriculum_density_rises_in_one_compilation_and_is_checked(capsys):
     args = ["train", "--set", "env.room_curriculum_episodes=10", "--episodes", "2", "--quiet"]
     assert main(args) == 2
     assert "env.room_curriculum_episodes" in capsys.readouterr().err
+
+
+def test_rooms_are_generated_in_batches_bitwise_as_in_one_vmap(monkeypatch):
+    """Above ROOM_BATCH keys the rooms of a renewal are generated a batch at a time (bounded
+    temporaries at any number of environments, docs/reliability.md): bitwise the rooms of one vmap
+    over every key (the program before batching), across batch borders and a padded last batch;
+    a run's rooms go through it (`TrainRooms.rooms_at`)."""
+    from fedjax_nav.worlds.procedural import generate
+    from fedjax_nav.worlds.rooms import make_spec
+
+    monkeypatch.setattr(trooms, "ROOM_BATCH", 64)
+    spec = make_spec("mixture")
+    keys = jax.vmap(suites.train_room_key)(jnp.arange(150, dtype=jnp.uint32) + 77)  # 2 batches + 22 padded
+    one = jax.jit(jax.vmap(lambda k: generate(k, spec)))(keys)
+    batched = jax.jit(lambda k: trooms.generate_rooms(k, spec))(keys)
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(batched)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    calls = []
+    monkeypatch.setattr(trooms, "generate_rooms", lambda k, s, d: calls.append(k.shape) or one)
+    cfg = load_config(None, [*TINY, "env.rooms=procedural", "env.room_families=[mixture]", "env.envs_per_robot=75"])
+    jax.eval_shape(trooms.TrainRooms(cfg).rooms_at, jnp.arange(150, dtype=jnp.uint32))
+    assert calls == [(150,)]

@@ -59,6 +59,12 @@ FIXED = "fixed"
 ROOM_STREAM = 0x8007  # fold_in tag: the seed's room stream and placement draws (the run's key stream is untouched)
 ROOM_BANK = 0x8009  # fold_in tag: the learnability curriculum's draws (the run's key stream is untouched)
 UNTRIED = 0.5  # p of a room never tried: p(1 - p) is largest there
+# Rooms generated at once at a renewal (`jax.lax.map`'s batch): generating every environment's room
+# in one vmap held ~230 KB of temporaries per room ('mixture', XLA:CPU), 9.6 GB at 5 x 8192
+# environments, more than the run's state; in batches of ROOM_BATCH the generator's temporaries
+# stay ~120 MB at any number of environments, and each room is the same (docs/reliability.md,
+# "Memory for many environments").
+ROOM_BATCH = 512
 
 
 def parse_room_spec(text: str) -> dict:
@@ -131,7 +137,7 @@ class TrainRooms:
         world = self.world
         for spec, idx in self.groups:
             keys = jax.vmap(train_room_key)(counters[idx])
-            rooms = jax.vmap(lambda k, spec=spec: generate(k, spec, density))(keys)
+            rooms = generate_rooms(keys, spec, density)
             world = jax.tree.map(lambda a, b, idx=idx: a.at[idx].set(b.astype(a.dtype)), world, rooms)
         return world
 
@@ -256,6 +262,20 @@ def update_score(p: jax.Array, slot: jax.Array, outcome: jax.Array, rate) -> jax
     """p f32[B] with p[slot] <- (1 - rate) p[slot] + rate * outcome (outcome in [0, 1]): a room
     solved every time rises to 1 as 1 - (1 - p0)(1 - rate)^n."""
     return p.at[slot].set((1.0 - rate) * p[slot] + rate * outcome)
+
+
+def generate_rooms(keys: jax.Array, spec, density=1.0) -> World:
+    """`generate` for every key (a World [keys]): one vmap up to ROOM_BATCH keys, above it
+    `jax.lax.map` over batches of ROOM_BATCH, the keys padded to a whole batch (the padding rooms
+    dropped): a room generated in a short remainder batch could round differently from the same
+    room in a wide one (XLA:CPU picks its loops by width), so every batch has the one width."""
+    n = keys.shape[0]
+    if n <= ROOM_BATCH:
+        return jax.vmap(lambda k: generate(k, spec, density))(keys)
+    pad = -n % ROOM_BATCH
+    keys = jnp.concatenate([keys, keys[:pad]]) if pad else keys
+    rooms = jax.lax.map(lambda k: generate(k, spec, density), keys, batch_size=ROOM_BATCH)
+    return jax.tree.map(lambda x: x[:n], rooms)
 
 
 def _per_env(world: World, per: int) -> World:
