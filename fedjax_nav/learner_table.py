@@ -27,10 +27,10 @@ class Bound:
     `absolute`) exceeds the value of the config field `field` (dotted; 0 turns the bound off).
     `said` names the quantity in the message (docs/reliability.md, "Divergence")."""
 
-    metric: str
-    field: str
-    said: str
-    absolute: bool = False
+    metric: str  # a per-network metric of the learner (a metrics.csv column): "critic_loss", "approx_kl", ...
+    field: str  # the dotted config field holding the bound: "run.max_critic_loss"; its value 0 = off
+    said: str  # the quantity's name in the one-line message: "the critic loss"
+    absolute: bool = False  # compare |metric| (the Q estimate, the entropy: either sign diverges)
 
 
 @dataclass(frozen=True)
