@@ -6,6 +6,9 @@ a "module:attribute" string resolved only when asked (`implementation`), so that
 free of jax. The config's `learner` choices are this table's keys; nothing in the package branches
 on a learner's name.
 
+Each row also declares its divergence bounds (`Bound`, docs/reliability.md, "Divergence"): which of
+its per-network metrics the host checks after each chunk against which config field.
+
 A learner added from outside the package (tests/toy_learner.py) is one module holding its
 `Learner` and one row given to `register`.
 """
@@ -15,6 +18,19 @@ from __future__ import annotations
 import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Bound:
+    """A divergence bound: the run stops (exit 3) at the first episode where a network's `metric`
+    (one of its learner's per-network metrics, `agents.learners.Learner.metrics`; |metric| when
+    `absolute`) exceeds the value of the config field `field` (dotted; 0 turns the bound off).
+    `said` names the quantity in the message (docs/reliability.md, "Divergence")."""
+
+    metric: str  # a per-network metric of the learner (a metrics.csv column): "critic_loss", "approx_kl", ...
+    field: str  # the dotted config field holding the bound: "run.max_critic_loss"; its value 0 = off
+    said: str  # the quantity's name in the one-line message: "the critic loss"
+    absolute: bool = False  # compare |metric| (the Q estimate, the entropy: either sign diverges)
 
 
 @dataclass(frozen=True)
@@ -29,6 +45,7 @@ class LearnerRow:
     export: str  # the exported actor's network kind (deploy/policy_template.py): "heads" or "squashed"
     update_every: str  # the dotted config field of the steps between two update events
     steps_per_update: tuple[str, ...]  # dotted config fields whose product is the gradient steps per event
+    bounds: tuple[Bound, ...]  # its divergence bounds, checked after each chunk (training.metrics.check_finite)
     recurrent: str = ""  # a dotted choice field: where its value is not "none" the actor is a GRU ("gru" export)
     plain_actor: bool = False  # evaluated by evaluation.policies.actor_policy(hidden, depth, activation)
 
@@ -38,8 +55,17 @@ class LearnerRow:
         return getattr(importlib.import_module(module), attribute)
 
 
+# The critic's divergence (docs/reliability.md, "Divergence"): PPO's value net is its critic, so
+# its value loss answers to the same field as the replay learners' critic loss.
+CRITIC_LOSS = "run.max_critic_loss"
+OFF_POLICY_BOUNDS = (
+    Bound("q", "run.max_abs_q", "the mean |Q| estimate", absolute=True),
+    Bound("critic_loss", CRITIC_LOSS, "the critic loss"),
+)
+
 _OFF_POLICY = {  # the replay learners' shared settings: the offpolicy section
     "on_policy": False,
+    "bounds": OFF_POLICY_BOUNDS,
     "actor_section": "offpolicy",
     "update_every": "offpolicy.train_every",
     "steps_per_update": ("offpolicy.gradient_steps",),
@@ -88,6 +114,11 @@ LEARNERS: dict[str, LearnerRow] = {
             recurrent="ppo.recurrent",  # RecurrentMLP with its GRU
             update_every="ppo.rollout",
             steps_per_update=("ppo.epochs", "ppo.minibatches"),
+            bounds=(
+                Bound("value_loss", CRITIC_LOSS, "the value loss"),
+                Bound("approx_kl", "ppo.max_approx_kl", "the approximate KL (approx_kl)"),
+                Bound("entropy", "ppo.max_abs_entropy", "the |entropy| estimate", absolute=True),
+            ),
         ),
     ]
 }
@@ -122,6 +153,11 @@ def get(name: str) -> LearnerRow:
 def off_policy() -> tuple[str, ...]:
     """The names of the learners that learn from a replay buffer."""
     return tuple(n for n, r in LEARNERS.items() if not r.on_policy)
+
+
+def bound_fields() -> tuple[str, ...]:
+    """The config fields that hold a learner's divergence bound, each once, in the table's order."""
+    return tuple(dict.fromkeys(b.field for r in LEARNERS.values() for b in r.bounds))
 
 
 def register(row: LearnerRow) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from fedjax_nav.agents import ddpg, learners, td3
-from fedjax_nav.learner_table import LearnerRow
+from fedjax_nav.learner_table import OFF_POLICY_BOUNDS, LearnerRow
 
 NOISE = 0.3  # exploration noise std, in box half-widths
 
@@ -38,5 +38,6 @@ ROW = LearnerRow(
     export="heads",
     update_every="offpolicy.train_every",
     steps_per_update=("offpolicy.gradient_steps",),
+    bounds=OFF_POLICY_BOUNDS,  # DDPG's metrics, so DDPG's bounds: |Q| and the critic loss
 )
 assert ddpg.Actor is not None  # the actor the row's "heads" export reads

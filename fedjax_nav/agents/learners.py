@@ -61,7 +61,7 @@ class Record(NamedTuple):
 
 class Learner(NamedTuple):
     """A learner as data plus pure functions (the module docstring gives the call shapes). The
-    facts of the learner's row (fedjax_nav.learner_table: name, on_policy, shared, targets) are
+    facts of the learner's row (fedjax_nav.learner_table: name, on_policy, shared, targets, bounds) are
     filled in by `get`; an implementation leaves them at their defaults."""
 
     metrics: tuple[str, ...]  # the losses `update` reports: the trainer's per-network metrics
@@ -85,6 +85,7 @@ class Learner(NamedTuple):
     on_policy: bool = False  # the row's: learns from its own policy's rollout, no buffer to share
     shared_fields: tuple[str, ...] = ()  # the row's `shared`: what a federated round averages
     target_fields: tuple[str, ...] = ()  # the row's `targets`: averaged too with fed.include_targets
+    bounds: tuple[learner_table.Bound, ...] = ()  # the row's divergence bounds on `metrics` (training.metrics)
 
     def shared(self, state, include_targets: bool = False) -> dict:
         """What a client sends in a federated round: its SHARED fields (and TARGETS if asked)."""
@@ -315,5 +316,9 @@ def get(name: str) -> Learner:
     with the row's facts filled in."""
     row = learner_table.get(name)
     return row.learner()._replace(
-        name=row.name, on_policy=row.on_policy, shared_fields=row.shared, target_fields=row.targets
+        name=row.name,
+        on_policy=row.on_policy,
+        shared_fields=row.shared,
+        target_fields=row.targets,
+        bounds=row.bounds,
     )

@@ -189,8 +189,9 @@ def add_train(sub) -> None:
     p.add_argument(
         "--allow-config-change",
         action="store_true",
-        help="with --resume: allow changing run.episodes, run.checkpoint_every, run.keep_checkpoints, run.tensorboard, "
-        "run.max_abs_q, run.max_critic_loss (docs/reliability.md)",
+        help="with --resume: allow changing run.episodes, run.checkpoint_every, run.keep_checkpoints, run.tensorboard "
+        "and the learners' divergence bounds: run.max_abs_q, run.max_critic_loss, ppo.max_approx_kl, "
+        "ppo.max_abs_entropy (docs/reliability.md)",
     )
     p.add_argument(
         "--memory-budget",

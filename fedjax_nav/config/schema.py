@@ -247,6 +247,11 @@ class PPOConfig:
         doc="normalise observations with running statistics, updated from each rollout and part of the "
         "actor: federated with it, evaluated and exported with it (static)",
     )
+    # Divergence guard (docs/reliability.md; the value loss answers to run.max_critic_loss): healthy
+    # runs reach approx_kl 0.03 and |entropy| 7.6 (its true value is at most log 2 on the box);
+    # ppo.lr = 1 (the thesis preset) gives approx_kl 4.7e7 and |entropy| 1.4e3 or more in episode 0.
+    max_approx_kl: float = _f(1e3, lo=0.0, doc="stop when an update's mean approx_kl exceeds this (0 = off)")
+    max_abs_entropy: float = _f(1e3, lo=0.0, doc="stop when the |entropy| estimate exceeds this (0 = off)")
 
 
 @dataclass(frozen=True)
@@ -316,8 +321,9 @@ class RunConfig:
     )
     # Divergence guard (docs/reliability.md): healthy thesis runs reach |Q| ~ 14 and critic losses
     # ~ 11; no return of the task exceeds ~1e5. Crossing a bound stops the run like NaN (exit 3).
+    # Each learner's row names the bounds it answers to (learner_table.Bound); PPO's are in `ppo`.
     max_abs_q: float = _f(1e6, lo=0.0, doc="stop when a network's mean |Q| estimate exceeds this (0 = off)")
-    max_critic_loss: float = _f(1e12, lo=0.0, doc="stop when a critic loss exceeds this (0 = off)")
+    max_critic_loss: float = _f(1e12, lo=0.0, doc="stop when a critic loss (PPO's value loss) exceeds this (0 = off)")
     # Periodic evaluation (docs/generalization.md): the eval_success column of metrics.csv.
     eval_every: int = _f(
         0, lo=0, hi=1_000_000, doc="episodes between greedy evaluations on run.eval_suite (0 = never; static)"

@@ -10,8 +10,9 @@ import jax
 import numpy as np
 import pandas as pd
 
-from fedjax_nav.config import Config
+from fedjax_nav.config import Config, get
 from fedjax_nav.federated.comm import bytes_per_round, communication
+from fedjax_nav.learner_table import Bound
 from fedjax_nav.methods import Method
 from fedjax_nav.rundir import goal_share, success_last_per_seed
 
@@ -25,6 +26,7 @@ class Facts:
     n_nets: int  # networks (1 for a shared-network method)
     num_params: int  # parameters one client sends per round (the learner's shared fields)
     loss_names: tuple[str, ...]  # the learner's per-network metrics (critic_loss, ...)
+    bounds: tuple[Bound, ...]  # the learner row's divergence bounds on them (`check_finite`)
     byzantine: np.ndarray  # bool[clients]: the Byzantine clients (fed.byzantine)
 
 
@@ -140,9 +142,10 @@ def summarize(df: pd.DataFrame, cfg: Config, facts: Facts, last: int = 25) -> di
 
 
 class DivergenceError(RuntimeError):
-    """NaN or Inf in losses or parameters, or a divergence bound crossed (run.max_abs_q,
-    run.max_critic_loss); the message names the quantity, episode, seed and robot. `episode`: the
-    first bad episode (the episodes before it are good)."""
+    """NaN or Inf in losses or parameters, or a divergence bound of the learner's row crossed
+    (learner_table.Bound: run.max_abs_q, run.max_critic_loss, ppo.max_approx_kl, ...); the message
+    names the quantity, episode, seed and robot. `episode`: the first bad episode (the episodes
+    before it are good)."""
 
     def __init__(self, msg: str, episode: int | None = None):
         super().__init__(msg)
@@ -154,11 +157,11 @@ class Interrupted(RuntimeError):
 
 
 def check_finite(m: dict, first_episode: int, cfg: Config, facts: Facts) -> None:
-    """Raise DivergenceError at the first episode with a non-finite loss, Q estimate, reward or
-    parameter, or with a mean |Q| estimate above run.max_abs_q or a critic loss above
-    run.max_critic_loss (host-side, after each chunk; leaves [seeds, episodes, nets or robots])."""
-    r = cfg.run
-    said = {"critic_loss": "the critic loss", "actor_loss": "the actor loss", "q": "the Q estimate"}
+    """Raise DivergenceError at the first episode with a non-finite learner metric, reward or
+    parameter, or with a metric beyond one of the learner's bounds (`facts.bounds`, each read from
+    its config field; 0 = off) (host-side, after each chunk; leaves [seeds, episodes, nets or
+    robots])."""
+    said = {b.metric: b.said for b in facts.bounds}
     checks = [
         (f"NaN/Inf in {said.get(name, name)}", ~np.isfinite(np.asarray(m[name])), None, True)
         for name in facts.loss_names
@@ -167,27 +170,12 @@ def check_finite(m: dict, first_episode: int, cfg: Config, facts: Facts) -> None
         ("NaN/Inf in the parameters", ~np.asarray(m["params_finite"], bool), None, True),
         ("NaN/Inf in the reward", ~np.isfinite(m["reward"]), None, False),
     ]
-    # the divergence bounds read a Q estimate and a critic loss (the off-policy learners')
-    q = np.abs(np.asarray(m["q"])) if "q" in m else None
-    loss = np.asarray(m["critic_loss"]) if "critic_loss" in m else None
-    if r.max_abs_q > 0 and q is not None:
-        checks.append(
-            (
-                f"the mean |Q| estimate reached {{:.3g}}, above run.max_abs_q = {r.max_abs_q:g},",
-                q > r.max_abs_q,
-                q,
-                True,
-            )
-        )
-    if r.max_critic_loss > 0 and loss is not None:
-        checks.append(
-            (
-                f"the critic loss reached {{:.3g}}, above run.max_critic_loss = {r.max_critic_loss:g},",
-                loss > r.max_critic_loss,
-                loss,
-                True,
-            )
-        )
+    for b in facts.bounds:
+        limit = get(cfg, b.field)
+        if limit > 0:
+            x = np.asarray(m[b.metric])
+            x = np.abs(x) if b.absolute else x
+            checks.append((f"{b.said} reached {{:.3g}}, above {b.field} = {limit:g},", x > limit, x, True))
     found = []
     for name, bad, values, per_net in checks:
         if bad.any():
@@ -202,4 +190,4 @@ def check_finite(m: dict, first_episode: int, cfg: Config, facts: Facts) -> None
         if per_net and facts.n_nets > 1
         else ("the shared network" if per_net else f"robot {k}")
     )
-    raise DivergenceError(f"{name} at episode {first_episode + e}, seed {r.seed + s}, {who}", first_episode + e)
+    raise DivergenceError(f"{name} at episode {first_episode + e}, seed {cfg.run.seed + s}, {who}", first_episode + e)

@@ -17,16 +17,17 @@ from pathlib import Path
 
 from fedjax_nav import rundir
 from fedjax_nav.config import Config, ConfigError
+from fedjax_nav.learner_table import bound_fields
 
 # Fields `train --resume RUN --allow-config-change` may change against the config fingerprinted in
-# the run's checkpoint (none changes the program or the numbers of a finished episode).
+# the run's checkpoint (none changes the program or the numbers of a finished episode): these and
+# every learner's divergence bounds (learner_table.Bound), read on the host after each chunk.
 RESUME_CHANGEABLE = (
     "run.episodes",
     "run.checkpoint_every",
     "run.keep_checkpoints",
-    "run.max_abs_q",
-    "run.max_critic_loss",
     "run.tensorboard",
+    *bound_fields(),
 )
 
 

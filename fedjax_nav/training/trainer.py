@@ -138,7 +138,15 @@ class Trainer:
 
     def facts(self) -> Facts:
         """What the host's tables (training.metrics) need of this run."""
-        return Facts(self.method, self.n_real, self.n_nets, self.num_params(), self.learner.metrics, self.byzantine)
+        return Facts(
+            method=self.method,
+            n_real=self.n_real,
+            n_nets=self.n_nets,
+            num_params=self.num_params(),
+            loss_names=self.learner.metrics,
+            bounds=self.learner.bounds,
+            byzantine=self.byzantine,
+        )
 
     def env_params(self, hp: HParams, world: worlds.World | None = None) -> EnvParams:
         """The environments' EnvParams [environments] in `world` (default: the run's fixed rooms)."""
