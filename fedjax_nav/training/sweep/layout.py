@@ -4,8 +4,9 @@ Why frozen (docs/reliability.md, "Resume", the sweep paragraph). A point's numbe
 batch, not only on its config: the group's program is compiled for the batch's rows (padded to
 the group's largest batch), its buffers are allocated at the group's largest capacity, and a field
 equal in every row of the group stays a scalar (spec.py). A resumed sweep that planned its
-unfinished points afresh changed all three, and a point trained again in another layout ended
-up to 6e-6 away from the uninterrupted sweep's, its results.csv rows too. Making the numbers
+unfinished points afresh changed all three: a point trained again in another layout ended up to
+6e-6 away from the uninterrupted sweep's, its results.csv rows too, and a batch checkpoint was
+restored into a smaller buffer allocation (a CheckpointError). Making the numbers
 independent of the layout would cost every sweep (every field per row, buffers per point) and
 would still leave XLA free to order a sum by the shapes it compiles for; freezing the layout costs
 one small file. So the whole plan is recorded before its first batch trains, and a resumed sweep
@@ -13,7 +14,8 @@ re-forms the same batches from it, each in its own group's program: a point is t
 in the batch it started in, from that batch's latest checkpoint, and one already written is not
 written again. A batch leaves the plan, with its checkpoints, once all its points are written.
 
-A recorded batch is re-formed when it holds an unfinished point this run asks for; its group is
+A recorded batch is re-formed when it holds an unfinished point this run asks for, and writes
+every unfinished point it holds (asked for or not: they cost nothing more); its group is
 planned again, with one line saying so, only when it cannot be run as recorded (another device
 count, or a memory budget it no longer fits): its points may then differ in the last bits.
 """
