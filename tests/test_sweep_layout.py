@@ -6,6 +6,7 @@ compared bitwise: tests/test_sweep_resume.py (full tier)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -43,7 +44,8 @@ def jobs(tmp_path_factory):
     jobs = sw.merge_jobs(sf.load_sweep(folder / "s.yaml").points)
     (g,) = sw.plan(sw.fold_prefixes(jobs), 2**40)
     per_row, once = sw.point_bytes(g.trainer)
-    return {"jobs": jobs, "budget": 4 * per_row + once, "one_point": 2 * per_row + once}  # 2 points per batch
+    # two points per batch; "rows": a budget of that many rows
+    return {"jobs": jobs, "budget": 4 * per_row + once, "one_point": 2 * per_row + once, "rows": (per_row, once)}
 
 
 def plan(jobs, out: Path, budget: int, devices: int = 1, lines: list | None = None):
@@ -130,3 +132,15 @@ def test_checkpoint_folders_no_plan_names_are_removed_with_a_line(jobs, tmp_path
     assert not stray.parent.exists() and lines == [
         f"sweep t: removed 1 checkpoint folder(s) of batches no plan names ({rundir.batches_dir(tmp_path)})"
     ]
+
+
+def test_a_layout_padded_to_the_devices_is_re_formed_as_recorded(jobs, tmp_path):
+    """Rows padded to the device count may exceed the budget's rows (as `plan` packs, before padding):
+    the recorded layout still runs as recorded (on this 2-core machine `sweep` spreads rows over 2)."""
+    one_seed = [sw.Job(replace(j.cfg, run=replace(j.cfg.run, seeds=1)), j.id) for j in jobs["jobs"]]
+    per_row, once = jobs["rows"]
+    groups, _ = plan(one_seed, tmp_path, 3 * per_row + once, devices=2)
+    assert [(g.batch_rows, [len(b) for b in g.batches]) for g in groups] == [(4, [3, 1])]
+    lines: list[str] = []
+    again, _ = plan(one_seed, tmp_path, 3 * per_row + once, devices=2, lines=lines)
+    assert layout_of(again) == layout_of(groups) and lines == []

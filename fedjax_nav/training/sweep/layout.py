@@ -30,7 +30,7 @@ from fedjax_nav import rundir
 from fedjax_nav.config import Config, ConfigError, from_dict, to_dict
 from fedjax_nav.config.memory import size
 from fedjax_nav.config.sweepfile import SweepError, point_id
-from fedjax_nav.training.sweep.plan import Group, batch_id, plan, point_bytes
+from fedjax_nav.training.sweep.plan import Group, batch_id, plan, point_bytes, row_cap
 from fedjax_nav.training.sweep.spec import Job, fold_prefixes, group_key
 from fedjax_nav.training.trainer import Trainer
 
@@ -115,7 +115,7 @@ def write(folder: Path, groups: list[dict]) -> None:
     """plan.json holding `groups` (atomic); none: the file goes, and batches/ if nothing else is there."""
     f = rundir.batch_plan(folder)
     if groups:
-        f.parent.mkdir(parents=True, exist_ok=True)
+        rundir.make_folder(f.parent, "sweep's batches folder")
         rundir.write_json(f, {"format": FORMAT, "groups": groups})
         return
     rundir.unlink_quietly(f)
@@ -165,13 +165,12 @@ def plan_batches(
         if not batches:
             continue
         trainer = Trainer(g.trainer)
-        per_row, once = point_bytes(trainer)
-        rows = g.raw["rows"]
-        if g.raw["devices"] != devices or rows * per_row + once > budget:
+        cap = row_cap(*point_bytes(trainer), budget)  # as `plan` packs: the rows before padding
+        if g.raw["devices"] != devices or any(sum(j.cfg.run.seeds for j in b) > cap for b in batches):
             moved += len(batches)
             continue
         jobs = [j for b in batches for j in b]
-        frozen.append(Group(group_key(g.trainer), jobs, trainer, batches, rows, frozenset(g.raw["batched"])))
+        frozen.append(Group(group_key(g.trainer), jobs, trainer, batches, g.raw["rows"], frozenset(g.raw["batched"])))
         covered |= {p.id for p in points_of(jobs) if wanted(p)}
     if moved:
         echo(
