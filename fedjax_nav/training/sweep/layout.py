@@ -100,7 +100,7 @@ def read(folder: Path) -> list[Recorded]:
             raise ValueError(f"format {data.get('format')!r}, not {FORMAT}")
         out = []
         for g in data["groups"]:
-            int(g["devices"]), int(g["rows"]), frozenset(g["batched"])
+            int(g["devices"]), int(g["rows"]), frozenset(g["batched"])  # read by plan_batches: checked here
             batches = tuple((str(b["id"]), [_job(d, str(f)) for d in b["jobs"]]) for b in g["batches"])
             out.append(Recorded(g, from_dict(g["trainer"], str(f)), batches))
     except (ConfigError, rundir.RunDirError, KeyError, TypeError, ValueError, AttributeError) as e:
