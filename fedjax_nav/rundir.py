@@ -23,6 +23,7 @@ A sweep folder (`fedjax-nav sweep --out`, the report folder of `reproduce`) hold
     SWEEP/
       points/<id>/       one run directory per point (`fedjax_nav.config.sweepfile.point_id`)
       batches/<id>/      the checkpoints of a batch in flight
+      batches/plan.json  the batches as first planned, until each has written its points
       results.csv, summary.csv, sweep.yaml, sweep_stats.json, learning_curves.png   its tables
       tables/<name>/     the tables of a second sweep sharing the folder
 
@@ -72,6 +73,7 @@ SUITE_WORST_ROOMS_FIGURE = "worst_rooms.png"  # the worst rooms' episodes (fedja
 # a sweep folder
 POINTS = "points"
 BATCHES = "batches"
+BATCH_PLAN = "plan.json"  # in batches/: the layout a resumed sweep keeps (training.sweep.layout)
 SWEEP_RESULTS = "results.csv"  # tidy: point x seed x episode x robot, with the swept values
 SWEEP_SUMMARY = "summary.csv"  # one row per point
 SWEEP_FILE = "sweep.yaml"  # the sweep's description: names the sweep whose tables the folder holds
@@ -327,6 +329,11 @@ def points_dir(folder: str | Path) -> Path:
 def batches_dir(folder: str | Path) -> Path:
     """SWEEP/batches/: the checkpoints of the batches in flight, one folder per batch id."""
     return Path(folder) / BATCHES
+
+
+def batch_plan(folder: str | Path) -> Path:
+    """SWEEP/batches/plan.json: the sweep's batches as first planned (`training.sweep.layout`)."""
+    return batches_dir(folder) / BATCH_PLAN
 
 
 # ----------------------------------------------------------------------------- the metrics table

@@ -6,7 +6,7 @@ their tables are `fedjax_nav.analysis.sweeps`, which read the finished points fr
 
     name: tau
     description: soft vs hard FedAvg (thesis Fig. 14)
-    base: ../thesis/flddpg.yaml      # relative to the sweep file
+    base: ../thesis/flddpg.yaml      # relative to the sweep file, or a shipped name (thesis/flddpg)
     seeds: 8
     set: [run.episodes=125]          # optional: overrides applied to every point
     grid:                            # cartesian product; `base` may also be a grid key
@@ -23,6 +23,11 @@ their tables are `fedjax_nav.analysis.sweeps`, which read the finished points fr
 point against: success on every held-out family, in the thesis arena and over the worst 10% of
 rooms, each a threshold in [0, 1] (a key left out is not checked). Without it the report checks
 DEFAULT_GOAL, the first generalisation experiment's goal.
+
+`base` (in a grid too) names a config file: a path relative to the sweep file wins when that file
+exists; any other name is read as `fedjax-nav train --config` reads it (`config.io.locate`, one
+resolver for both): a shipped name (`thesis/flddpg`) or a path from the current directory. A name
+that is neither is one SweepError naming the sweep file and the name, listing the shipped names.
 
 Every point is a resolved `Config` (its `run.seeds` = the seeds it wants). Its id hashes the
 config's non-default fields, so two sweeps (or two experiments of `reproduce`) that ask for the
@@ -53,6 +58,7 @@ from fedjax_nav.config import (
     resolve_aliases,
     to_dict,
 )
+from fedjax_nav.config.io import locate
 from fedjax_nav.messages import show
 
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
@@ -189,16 +195,29 @@ def _combos(path: Path, spec: dict) -> list[dict]:
     return combos or [{}]
 
 
+def base_file(path: Path, base) -> Path:
+    """The config file a sweep file's `base:` names: a path relative to the sweep file when that
+    file exists, else what `--config` takes (`config.io.locate`, the one resolver of both: a
+    path, or a shipped name such as `thesis/flddpg`). A name that is neither is one ConfigError
+    naming it and listing the shipped names."""
+    beside = path.parent / str(base)
+    try:
+        if beside.exists():
+            return beside.resolve()
+    except (OSError, ValueError):  # a NUL byte or an over-long name: locate names it
+        pass
+    return locate(str(base), "config")
+
+
 def _point(path: Path, values: dict, base, before: list[str], after: list[str], buffer_scale: float) -> Point:
     """One point: its base config with the overrides `before` its grid values (the file's `set`),
     the grid values, then the overrides `after` them (the caller's, the seeds)."""
     if base is None:
         raise SweepError(f"{path}: no base config (give `base:` or a grid over base)")
-    base_path = (path.parent / str(base)).resolve()
     try:
-        data = read_yaml(base_path)
-    except ConfigError as e:
-        raise SweepError(f"{path}: base {base}: {e}") from None
+        data = read_yaml(base_file(path, base))
+    except ConfigError as e:  # e names the base as written (`locate`), with the shipped names when unknown
+        raise SweepError(f"{path}: base: {e}") from None
     grid_over = [f"{k}={json.dumps(v)}" for k, v in values.items() if k != "base"]
     src = f"{path} (point {point_label(values, Config())})"
     try:

@@ -27,6 +27,12 @@ def point_bytes(trainer: Trainer) -> tuple[int, int]:
     return (est["total"] - once) // trainer.cfg.run.seeds, once  # every other part is per seed
 
 
+def row_cap(per_row: int, once: int, budget: int) -> int:
+    """How many rows (seeds) a batch may hold within `budget` (before padding to the devices);
+    0: not even one."""
+    return max(budget - once, 0) // max(per_row, 1)
+
+
 def default_memory_budget() -> int:
     """Half of the memory available now (`config.memory.available_memory`)."""
     return available_memory() // 2
@@ -55,7 +61,7 @@ def plan(jobs: list[Job], budget: int, devices: int = 1) -> list[Group]:
         rep = replace(rep, offpolicy=replace(rep.offpolicy, buffer_alloc=alloc))
         trainer = Trainer(rep)
         per_row, once = point_bytes(trainer)
-        cap = max(budget - once, 0) // max(per_row, 1)  # 0: not even one row fits (a single-seed point is checked too)
+        cap = row_cap(per_row, once, budget)  # 0: not even one row fits (a single-seed point is checked too)
         batches, cur, rows = [], [], 0
         for j in js:
             n = j.cfg.run.seeds

@@ -1,9 +1,9 @@
-"""Running a sweep's jobs: one jitted chunk per group, batches resumable from checkpoints, each
-finished point written as a run directory (`points/<id>/`)."""
+"""Running a sweep's jobs: one jitted chunk per group, batches resumable from checkpoints in the
+layout they were first planned in (`layout`), each finished point written as a run directory
+(`points/<id>/`)."""
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,22 +16,12 @@ import numpy as np
 from fedjax_nav import rundir
 from fedjax_nav.training.hparams import HParams
 from fedjax_nav.training.metrics import Facts, metrics_frame, summarize
-from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget, plan
-from fedjax_nav.training.sweep.spec import Job, fold_prefixes
+from fedjax_nav.training.sweep import layout
+from fedjax_nav.training.sweep.layout import is_done
+from fedjax_nav.training.sweep.plan import Group, batch_id, batch_rows, default_memory_budget
+from fedjax_nav.training.sweep.spec import Job
 from fedjax_nav.training.tblog import TensorBoardLog
 from fedjax_nav.training.trainer import Trainer
-
-
-def is_done(points_dir: Path, job: Job) -> bool:
-    f = points_dir / job.id / rundir.SUMMARY
-    if not f.exists():
-        return False
-    try:
-        s = rundir.read_json(f)
-    except rundir.RunDirError:  # unreadable (a foreign or damaged file): train the point again
-        return False
-    return s.get("seeds", 0) >= job.cfg.run.seeds and s.get("episodes_done") == job.cfg.run.episodes
-
 
 # ----------------------------------------------------------------------------- running
 
@@ -91,7 +81,10 @@ def write_point(points_dir: Path, job: Job, facts: Facts, params: dict, metrics:
 def run_batch(
     group: Group, compiled: Compiled, jobs: list[Job], batches_dir: Path, points_dir: Path, progress: bool, desc: str
 ) -> float:
-    """Train one batch (resuming its checkpoint if any), save its points, return its wall time."""
+    """Train one batch (resuming its checkpoint if any), save its points, return its wall time. A
+    point already written (a batch trained again after a kill between its writes) is not written
+    again: its numbers are the ones written (`layout`). The caller removes the checkpoints
+    (`layout.finish`) once every point is written."""
     from tqdm.auto import tqdm
 
     from fedjax_nav.training.checkpoint import Checkpointer
@@ -122,7 +115,7 @@ def run_batch(
                     tb[job.id].episodes(df.assign(episode=df["episode"] + first))
             done = first + K
             for job, lo, _ in spans:  # shorter budgets of the same run (spec.fold_prefixes)
-                for pre in (p for p in job.prefixes if p.cfg.run.episodes == done):
+                for pre in (p for p in job.prefixes if p.cfg.run.episodes == done and not is_done(points_dir, p)):
                     k = pre.cfg.run.seeds
                     extra = {"prefix_of": job.id, "wall_s": (time.time() - t0) * k / group.batch_rows}
                     rows = {key: v[lo : lo + k] for key, v in metrics.items()}
@@ -142,6 +135,8 @@ def run_batch(
             log.close()
     wall = time.time() - t0
     for job, lo, n in spans:
+        if is_done(points_dir, job):  # written before a kill: kept as written (layout)
+            continue
         extra = {
             "sweep_batch_rows": group.batch_rows,
             "sweep_batch_wall_s": wall,
@@ -150,7 +145,6 @@ def run_batch(
         }
         shared = trainer.learner.shared(_slice(states, lo, n).agents)
         write_point(points_dir, job, facts, shared, {k: v[lo : lo + n] for k, v in metrics.items()}, extra)
-    shutil.rmtree(bdir, ignore_errors=True)
     return wall
 
 
@@ -179,15 +173,19 @@ def run_jobs(
     points_dir.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if not is_done(points_dir, j)]
     skipped = len(jobs) - len(todo)
-    todo = fold_prefixes(todo)
-    prefixes = sum(len(j.prefixes) for j in todo)
     budget = budget or default_memory_budget()
-    groups = plan(todo, budget, devices) if todo else []
+    groups, record = layout.plan_batches(todo, out, budget, devices, echo, desc)
+    heads = [j for g in groups for j in g.jobs]
+    again = sum(is_done(points_dir, j) for j in heads)  # rows of a batch re-formed after a kill (layout)
+    prefixes = sum(not is_done(points_dir, p) for j in heads for p in j.prefixes)
     n_batches = sum(len(g.batches) for g in groups)
-    saved = f" (and {prefixes} saved from their first episodes)" if prefixes else ""
+    notes = [f"and {prefixes} saved from their first episodes"] if prefixes else []
+    notes += [f"beside {again} done in their batches, trained again as planned, not rewritten"] if again else []
+    saved = f" ({'; '.join(notes)})" if notes else ""
     echo(
-        f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(todo)} to train{saved} in {len(groups)} "
-        f"compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB, {devices} device(s))"
+        f"{desc}: {len(jobs)} point(s), {skipped} already done; {len(heads) - again} to train{saved} in "
+        f"{len(groups)} compiled group(s), {n_batches} batch(es) (memory budget {budget / 2**30:.1f} GiB, "
+        f"{devices} device(s))"
     )
     stats = {
         "points": len(jobs),
@@ -206,6 +204,7 @@ def run_jobs(
             for bi, b in enumerate(g.batches):
                 what = f"{g.trainer.cfg.method} [{gi + 1}/{len(groups)}] batch {bi + 1}/{len(g.batches)}"
                 walls.append(run_batch(g, compiled, b, batches_dir, points_dir, progress, what))
+                record = layout.finish(out, record, batch_id(b, g.batch_rows))
                 outer.update(1)
             stats["groups"].append(
                 {
@@ -220,6 +219,4 @@ def run_jobs(
     finally:
         outer.close()
     stats["wall_s"] = time.time() - t0
-    if batches_dir.exists() and not any(batches_dir.iterdir()):
-        batches_dir.rmdir()
     return stats

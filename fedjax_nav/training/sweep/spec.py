@@ -16,7 +16,8 @@ size (by repeating its last row, whose results are dropped) so that the group co
 Each point is saved as a normal run directory (`points/<id>/`: config.yaml, metrics.csv,
 summary.json, params.npz: `fedjax-nav evaluate` reads it) as soon as its batch finishes; a
 finished point is skipped when the sweep runs again, and a batch in flight resumes from its
-latest checkpoint (`batches/<id>/checkpoints`). The point id hashes the resolved config, so
+latest checkpoint (`batches/<id>/checkpoints`) in the layout it was first planned in
+(`batches/plan.json`, `layout`: docs/reliability.md, "Resume"). The point id hashes the resolved config, so
 two sweeps (or two experiments of `reproduce`) that ask for the same run share it.
 """
 
