@@ -46,6 +46,8 @@ class LearnerRow:
     update_every: str  # the dotted config field of the steps between two update events
     steps_per_update: tuple[str, ...]  # dotted config fields whose product is the gradient steps per event
     bounds: tuple[Bound, ...]  # its divergence bounds, checked after each chunk (training.metrics.check_finite)
+    storage_size: str  # the dotted config field that sizes its storage (a memory refusal names it)
+    update_size: str  # the dotted config field that sizes one update's batch (a memory refusal names it)
     recurrent: str = ""  # a dotted choice field: where its value is not "none" the actor is a GRU ("gru" export)
     plain_actor: bool = False  # evaluated by evaluation.policies.actor_policy(hidden, depth, activation)
 
@@ -66,6 +68,8 @@ OFF_POLICY_BOUNDS = (
 _OFF_POLICY = {  # the replay learners' shared settings: the offpolicy section
     "on_policy": False,
     "bounds": OFF_POLICY_BOUNDS,
+    "storage_size": "offpolicy.buffer_size",
+    "update_size": "offpolicy.batch_size",
     "actor_section": "offpolicy",
     "update_every": "offpolicy.train_every",
     "steps_per_update": ("offpolicy.gradient_steps",),
@@ -114,6 +118,8 @@ LEARNERS: dict[str, LearnerRow] = {
             recurrent="ppo.recurrent",  # RecurrentMLP with its GRU
             update_every="ppo.rollout",
             steps_per_update=("ppo.epochs", "ppo.minibatches"),
+            storage_size="ppo.rollout",  # [rollout, environments] per robot
+            update_size="ppo.rollout",  # the whole rollout, in minibatches
             bounds=(
                 Bound("value_loss", CRITIC_LOSS, "the value loss"),
                 Bound("approx_kl", "ppo.max_approx_kl", "the approximate KL (approx_kl)"),

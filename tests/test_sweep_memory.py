@@ -39,7 +39,7 @@ def config(seeds: int, extra=()):
 def test_the_sweep_refuses_a_point_exactly_where_train_refuses_its_config(seeds):
     cfg = config(seeds)
     est = memory_estimate(Trainer(cfg))
-    assert est["activations"] > 0.8 * est["total"], est  # the part a state-only estimate leaves out
+    assert est["update"] > 0.5 * est["total"], est  # the part a state-only estimate leaves out
     job = sw.Job(cfg, "big-batch")
     check_memory(Trainer(cfg), budget=est["total"])
     (g,) = sw.plan([job], budget=est["total"])

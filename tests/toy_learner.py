@@ -39,5 +39,7 @@ ROW = LearnerRow(
     update_every="offpolicy.train_every",
     steps_per_update=("offpolicy.gradient_steps",),
     bounds=OFF_POLICY_BOUNDS,  # DDPG's metrics, so DDPG's bounds: |Q| and the critic loss
+    storage_size="offpolicy.buffer_size",  # DDPG's replay rows and batch (a memory refusal names them)
+    update_size="offpolicy.batch_size",
 )
 assert ddpg.Actor is not None  # the actor the row's "heads" export reads

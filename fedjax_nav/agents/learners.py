@@ -40,7 +40,7 @@ from fedjax_nav import learner_table
 from fedjax_nav.agents import buffer as rb
 from fedjax_nav.agents import ddpg, sac, td3
 from fedjax_nav.agents import learner_ppo as lp
-from fedjax_nav.agents.networks import Critic
+from fedjax_nav.agents.networks import ACTIVATIONS_OUTSIDE, ACTIVATIONS_PER_LAYER, Critic
 from fedjax_nav.agents.networks_extra import SquashedGaussianActor
 from fedjax_nav.agents.offpolicy import Batch, nstep, one_step
 
@@ -75,6 +75,9 @@ class Learner(NamedTuple):
     store: Callable  # (nets, storage, record, g, rows, hp) -> storage
     due: Callable  # (nets, g, rows, hp) -> bool[]: an update event after step g
     update: Callable  # (nets, state, storage, key, g, rows, hp) -> (state, {metric: f32[]})
+    # (nets, obs_size, rows) -> peak bytes of one `update` of one agent beyond its state and storage:
+    # the batches it gathers and its networks' activations and gradients (training.resources)
+    update_bytes: Callable
     targets_due: Callable | None = None  # (nets, g, rows, hp) -> bool[]: a separate target update (DDPG)
     targets: Callable | None = None  # (nets, state, hp) -> state
     # exploration that is not the agent's: a carry of one seed, stepped once per environment step
@@ -239,6 +242,27 @@ def _td3_explore(nets, state, obs, key, hp, carry, memory, first):
     return td3.act(nets, state.actor, obs, key, hp.td3.expl_noise), (), memory
 
 
+def activation_bytes(obs_size: int, hidden: int, depth: int, batch: int, action_size: int = 2) -> int:
+    """Peak bytes of one network's replay update beyond its state: the sampled batch (obs,
+    next_obs, action, reward, done; and its gathered copy) and the actor's and critic's activations
+    and gradients, (5 depth + 3) x hidden f32 per row (measured: `ACTIVATIONS_PER_LAYER`)."""
+    row = 2 * (2 * obs_size + action_size + 2)
+    per_row = (ACTIVATIONS_PER_LAYER * depth + ACTIVATIONS_OUTSIDE) * hidden + row
+    return 4 * per_row * int(batch)
+
+
+def _replay_bytes(critics: int):
+    """One update event of a learner with `critics` critics: `gradient_steps` batches in turn, so one
+    batch at a time; a second critic adds half of DDPG's actor-and-critic activations (SAC's and
+    TD3's twins: measured 1.2x XLA CPU's temporaries, tests/test_memory_estimate.py)."""
+
+    def size(nets: OffPolicyNets, obs_size: int, rows: int) -> int:
+        one = activation_bytes(obs_size, nets.critic.hidden, nets.critic.depth, nets.batch_size)
+        return one + (critics - 1) * one // 2
+
+    return size
+
+
 def _sac_explore(nets, state, obs, key, hp, carry, memory, first):
     return sac.act(nets, state.actor, obs, key), (), memory
 
@@ -253,6 +277,7 @@ def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) 
     event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
     explore; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
     metrics = fields.pop("metrics", OFF_POLICY_METRICS)
+    critics = fields.pop("critics", 1)  # twin critics (TD3, SAC): `_replay_bytes`
     return Learner(
         metrics=metrics,
         make_nets=_off_policy_nets(actor_cls),
@@ -263,6 +288,7 @@ def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) 
         store=_store_replay,
         due=_due_replay,
         update=_replay_update(grad_step, metrics),
+        update_bytes=_replay_bytes(critics),
         **fields,
     )
 
@@ -285,6 +311,7 @@ TD3 = _replay_learner(
     td3.greedy,
     init=lambda nets, key, obs_size, hp: td3.init(nets, key, obs_size),
     explore=_td3_explore,
+    critics=2,
 )
 SAC_METRICS = (*OFF_POLICY_METRICS, "alpha", "entropy")
 SAC = _replay_learner(
@@ -294,6 +321,7 @@ SAC = _replay_learner(
     init=lambda nets, key, obs_size, hp: sac.init(nets, key, obs_size, hp.sac.init_alpha),
     explore=_sac_explore,
     metrics=SAC_METRICS,
+    critics=2,
 )
 
 PPO = Learner(
@@ -308,6 +336,7 @@ PPO = Learner(
     store=lp.store,
     due=lp.due,
     update=lp.update,
+    update_bytes=lp.update_bytes,
 )
 
 

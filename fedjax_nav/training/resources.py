@@ -1,19 +1,26 @@
-"""Resource checks before a run allocates anything: the memory its state will take, by part.
+"""Resource checks before a run allocates anything: the memory its run will take, by part
+(docs/reliability.md, "Memory for many environments").
 
 `jax.eval_shape` of the trainer's `init` gives the exact bytes of one seed's `TrainState` without
-allocating it (the sweeps pack their batches by this estimate: `sweep.plan.point_bytes`), and
-`activation_bytes` the batch and activations of one update of every network; `check_memory`
-refuses a run whose estimate exceeds the budget (`config.memory.over_budget`, the rule evaluation
-refuses by too), with one line naming the config field that dominates (docs/reliability.md).
+allocating it; each learner declares what one update holds beyond it (`Learner.update_bytes`:
+its batches and its own networks' activations); the room generator what drawing the rooms holds
+(`training.rooms.generation_bytes`); and compiling the program costs about COMPILER_BYTES.
+`check_memory` refuses a run whose estimate exceeds the budget (`config.memory.over_budget`, the
+rule evaluation refuses by too), with one line naming the config field behind the largest part,
+taken from the learner's row (`storage_size`, `update_size`). The sweeps pack their batches by the
+same estimate (`sweep.plan.point_bytes`).
 """
 
 from __future__ import annotations
 
 import jax
 
-from fedjax_nav.config import ConfigError
+from fedjax_nav import learner_table
+from fedjax_nav.agents.learners import activation_bytes  # noqa: F401  (re-exported: the replay update's part)
+from fedjax_nav.config import ConfigError, get
 from fedjax_nav.config.memory import nbytes, over_budget, size
 from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.rooms import generation_bytes
 from fedjax_nav.training.trainer import Trainer
 
 # peak memory of a chunk per row / bytes of one TrainState row (donated); sweeps plan with it too
@@ -21,52 +28,46 @@ STATE_BYTES_FACTOR = 3
 
 # Host bytes per metrics row (episode x seed x robot): the arrays, the pandas frame and its CSV text.
 METRICS_ROW_BYTES = 16 * 8 * 3
-# f32 values per batch row and hidden unit of each layer in one `ddpg.update` (critic step, then
-# actor step; forward and backward). Measured: XLA CPU's temporaries of the thesis FLDDPG chunk
-# program (5 networks), batch 65536 minus batch 4096, per row and network: hidden 16 / depth 1, 2:
-# 204, 268 values; hidden 64 / depth 3: 1,054; hidden 256 / depth 1, 3, 6: 1,630, 3,934, 7,006.
-# (5 depth + 3) hidden plus the batch twice gives 1.2-1.3x each of them.
-ACTIVATIONS_PER_LAYER = 5
-ACTIVATIONS_OUTSIDE = 3
+# What compiling a chunk program adds to the process's peak (XLA:CPU; it is not returned to the
+# system after): the peak RSS growth of a run minus its other parts, 0.98-1.08 GB for DDPG, PPO and
+# GRU-PPO at 64 environments per robot (learners/*.yaml; scripts/memory_check.py).
+COMPILER_BYTES = 1_200 * 2**20
 
 
 class ResourceError(ConfigError):
     """The run would need more memory than the budget; the message names the field (exit 2)."""
 
 
-def activation_bytes(obs_size: int, hidden: int, depth: int, batch: int, action_size: int = 2) -> int:
-    """Peak bytes of one network's `ddpg.update` beyond its state: the sampled batch (obs, next_obs,
-    action, reward, done; and its gathered copy) and the actor's and critic's activations and
-    gradients, (5 depth + 3) x hidden f32 per row (measured: `ACTIVATIONS_PER_LAYER`)."""
-    row = 2 * (2 * obs_size + action_size + 2)
-    per_row = (ACTIVATIONS_PER_LAYER * depth + ACTIVATIONS_OUTSIDE) * hidden + row
-    return 4 * per_row * int(batch)
-
-
 def memory_estimate(trainer: Trainer) -> dict[str, int]:
-    """Bytes of a run of `trainer.cfg` by part (every seed): "buffers" (replay), "networks"
-    (actors, critics, targets, Adam states, the aggregator's models), "env" (env states,
-    observations, counters), "activations" (one update of every network at once: batches,
-    activations, gradients), "metrics" (host tables of every episode), "worlds", and "total":
-    the state parts times STATE_BYTES_FACTOR (a chunk's peak: donated state, outputs, copies)
-    plus the others."""
+    """Bytes of a run of `trainer.cfg` by part (every seed): "buffers" (replay rows or rollouts),
+    "networks" (actors, critics, targets, Adam states, the aggregator's models), "env" (env states,
+    observations, counters, the rooms), "update" (one update of every network at once: the
+    learner's `update_bytes`), "rooms" (drawing the rooms: `training.rooms.generation_bytes`),
+    "compiler" (compiling the program), "metrics" (host tables of every episode), "worlds", and
+    "total": the state parts times STATE_BYTES_FACTOR (a chunk's peak: the donated state, its
+    outputs, the checkpoint's host copy) plus the others. Measured against the peak RSS of runs of
+    every learner at 64, 1,024 and 8,192 environments per robot: 1.1-1.4x it, never below
+    (scripts/memory_check.py; docs/reliability.md)."""
     cfg = trainer.cfg
-    d = cfg.offpolicy
     hp = hparams_from_config(cfg)
     shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
     S = cfg.run.seeds
     buffers = nbytes(shapes.buffers) * S
     networks = (nbytes(shapes.agents) + nbytes(shapes.agg_state)) * S
     env = nbytes(shapes) * S - buffers - networks
-    activations = activation_bytes(trainer.obs_size, d.hidden, d.depth, d.batch_size) * trainer.n_nets * S
+    update = trainer.learner.update_bytes(trainer.nets, trainer.obs_size, trainer.writes) * trainer.n_nets * S
+    largest = max((len(idx) for _, idx in trainer.rooms.groups), default=0) if trainer.rooms.procedural else 0
+    rooms = generation_bytes(largest) * S
     metrics = cfg.run.episodes * S * cfg.num_robots * METRICS_ROW_BYTES
     worlds = nbytes(trainer.world)
-    total = STATE_BYTES_FACTOR * (buffers + networks + env) + activations + metrics + worlds
+    total = STATE_BYTES_FACTOR * (buffers + networks + env) + update + rooms + COMPILER_BYTES + metrics + worlds
     return {
         "buffers": buffers,
         "networks": networks,
         "env": env,
-        "activations": activations,
+        "update": update,
+        "rooms": rooms,
+        "compiler": COMPILER_BYTES,
         "metrics": metrics,
         "worlds": worlds,
         "total": total,
@@ -75,27 +76,36 @@ def memory_estimate(trainer: Trainer) -> dict[str, int]:
 
 def check_memory(trainer: Trainer, budget: int | None = None, src: str = "config") -> dict[str, int]:
     """Raise ResourceError when the run's estimate exceeds `budget` bytes (default: the memory
-    available now), naming the field behind the largest share of the total; return the estimate."""
+    available now), naming the field behind the largest share of the total (the learner row's
+    storage and update fields for its parts); return the estimate."""
     est = memory_estimate(trainer)
     over = over_budget(est["total"], budget)
     if over is None:
         return est
     cfg = trainer.cfg
-    buffer_field = "offpolicy.buffer_alloc" if cfg.offpolicy.buffer_alloc else "offpolicy.buffer_size"
+    row = learner_table.get(cfg.learner)
+    storage = row.storage_size
+    if storage == "offpolicy.buffer_size" and cfg.offpolicy.buffer_alloc:
+        storage = "offpolicy.buffer_alloc"
     fields = {
-        "buffers": buffer_field,
-        "networks": "offpolicy.hidden",
-        "env": "run.seeds",
-        "activations": "offpolicy.batch_size",
+        "buffers": storage,
+        "networks": f"{row.actor_section}.hidden",
+        "env": "env.envs_per_robot",
+        "update": row.update_size,
+        "rooms": "env.envs_per_robot",
         "metrics": "run.episodes",
         "worlds": "env.worlds",
     }
     state = ("buffers", "networks", "env")  # counted STATE_BYTES_FACTOR times in the total
     part = max(fields, key=lambda k: est[k] * (STATE_BYTES_FACTOR if k in state else 1))  # the largest share
+    parts = ", ".join(f"{k} {size(est[k])}" for k in (*fields, "compiler") if est[k] >= est["total"] / 100)
+    if est[part] * (STATE_BYTES_FACTOR if part in state else 1) < est["compiler"]:  # a budget below compiling
+        raise ResourceError(
+            f"{src}: the run needs about {size(est['total'])} ({parts}), {over}; compiling the program "
+            f"alone takes about {size(est['compiler'])}: raise --memory-budget"
+        )
     name = fields[part]
-    section, key = name.split(".")
-    value = getattr(getattr(cfg, section), key)
-    parts = ", ".join(f"{k} {size(est[k])}" for k in fields if est[k] >= est["total"] / 100)
+    value = get(cfg, name)
     raise ResourceError(
         f"{src}: {name} = {value if part != 'worlds' else len(value)}: the run needs about {size(est['total'])} "
         f"({parts}; {cfg.run.seeds} seed(s)), {over}; lower {name} or run.seeds"

@@ -65,6 +65,15 @@ UNTRIED = 0.5  # p of a room never tried: p(1 - p) is largest there
 # stay ~120 MB at any number of environments, and each room is the same (docs/reliability.md,
 # "Memory for many environments").
 ROOM_BATCH = 512
+# XLA:CPU temporaries of generating one room (vmap of `generate`, 64 and 128 rooms): mixture 228 KB,
+# cave 183 KB, forest 128 KB, office 110 KB, boxes 77 KB, corridors 51 KB, maze 45 KB, warehouse
+# 35 KB, cylinders 29 KB, walls 27 KB; the memory estimate counts the largest for every family.
+ROOM_TEMP_BYTES = 240_000
+
+
+def generation_bytes(rooms: int) -> int:
+    """Peak temporaries of generating `rooms` rooms at once (`generate_rooms`: at most ROOM_BATCH)."""
+    return min(int(rooms), ROOM_BATCH) * ROOM_TEMP_BYTES
 
 
 def parse_room_spec(text: str) -> dict:

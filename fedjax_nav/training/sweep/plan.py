@@ -19,11 +19,12 @@ from fedjax_nav.training.trainer import Trainer
 def point_bytes(trainer: Trainer) -> tuple[int, int]:
     """(bytes per row, bytes once per batch) of the group's program, from train's own estimate
     (`training.resources.memory_estimate`, the one `train` refuses by): per row (seed) its
-    TrainState x STATE_BYTES_FACTOR, one update's batches and activations of every network and
-    its metrics tables; once, the worlds. A batch of n rows then needs n x per row + once, and a
-    point alone in its batch is refused exactly when `train` would refuse its config."""
+    TrainState x STATE_BYTES_FACTOR, one update's batches and activations of every network, its
+    rooms' generation and its metrics tables; once, the worlds and the compiler. A batch of n rows
+    then needs n x per row + once, and a point alone in its batch is refused exactly when `train`
+    would refuse its config."""
     est = memory_estimate(trainer)
-    once = est["worlds"]
+    once = est["worlds"] + est["compiler"]
     return (est["total"] - once) // trainer.cfg.run.seeds, once  # every other part is per seed
 
 
