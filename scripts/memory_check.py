@@ -90,8 +90,8 @@ def main() -> int:
             )
             gib = r["measured"] / 2**30, r["estimate"] / 2**30
             print(f"{name:8s} {envs:5d} envs: measured {gib[0]:.2f} GiB, estimate {gib[1]:.2f} GiB, ratio {ratio:.2f}")
-    if a.csv:
-        pd.DataFrame(rows).to_csv(a.csv, index=False)
+            if a.csv:  # after every case: a long check stopped early keeps what it measured
+                pd.DataFrame(rows).to_csv(a.csv, index=False)
     return 1 if bad else 0
 
 

@@ -67,7 +67,7 @@ def test_the_estimate_counts_update_and_rooms_and_bounds_room_generation():
         ("ppo", ["env.envs_per_robot=8192"], "ppo.rollout"),
         ("ppo-gru", ["env.envs_per_robot=8192"], "ppo.rollout"),
         ("sac", ["offpolicy.buffer_size=100000000"], "offpolicy.buffer_size"),
-        ("sac", ["offpolicy.batch_size=1000000"], "offpolicy.batch_size"),
+        ("sac", ["offpolicy.batch_size=1000000", "offpolicy.buffer_size=1000000"], "offpolicy.batch_size"),
         ("ppo", ["ppo.rollout=100000", "env.envs_per_robot=8"], "ppo.rollout"),
     ],
 )
