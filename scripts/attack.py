@@ -655,6 +655,32 @@ def table_cases(fx: Fixtures, table: dict) -> list[Case]:
     cases.append(
         Case("cli", "reproduce-only-empty-items", command_line("reproduce", table["reproduce"], flags={"--only": ",,"}))
     )
+    cases += third_pass_cases(tr, sw, fx)
+    return cases
+
+
+def third_pass_cases(tr: dict, sw: dict, fx: Fixtures) -> list[Case]:
+    """Many environments against the memory budget (refused before allocating, naming the learner's
+    own field), PPO's divergence bounds (exit 3) and a sweep whose `base:` is a shipped name."""
+    thesis = ["--config", "thesis/flddpg", "--episodes", "2", "--set", "env.episode_length=32"]
+    thesis += ["--set", "run.chunk_episodes=1", "--out", "{dir}/run", "--quiet"]
+    cases = []
+    for learner in ("sac", "ppo"):
+        for envs, budget in (("65536", "1G"), ("65536", "4G"), ("8192", "2G")):
+            argv = ["train", *thesis, "--set", f"learner={learner}", "--set", f"env.envs_per_robot={envs}"]
+            cases.append(
+                Case("cli", f"train-{learner}-{envs}-envs-budget-{budget}", argv + ["--memory-budget", budget])
+            )
+    ppo = ["train", *thesis, "--set", "learner=ppo", "--set", "ppo.rollout=16"]
+    for name, item in (("max-critic-loss-1", "run.max_critic_loss=1"), ("lr-1", "ppo.lr=1.0")):
+        cases.append(Case("cli", f"train-ppo-{name}", ppo + ["--set", item], codes=(3,), timeout=300.0))
+    gru = ppo + ["--set", "ppo.recurrent=gru", "--set", "ppo.lr=1.0"]
+    cases.append(Case("cli", "train-ppo-gru-lr-1", gru, codes=(3,), timeout=300.0))
+    small = ["run.episodes=2", "run.chunk_episodes=1", "env.episode_length=32"]
+    base = fx.sweep_file("base-shipped-name", {"base": "thesis/flddpg", "set": small})
+    cases.append(
+        Case("cli", "sweep-base-shipped-name", command_line("sweep", sw, pos=[base]), expect="ok", timeout=300.0)
+    )
     return cases
 
 
