@@ -674,7 +674,7 @@ def third_pass_cases(tr: dict, sw: dict, fx: Fixtures) -> list[Case]:
     ppo = ["train", *thesis, "--set", "learner=ppo", "--set", "ppo.rollout=16"]
     for name, item in (("max-critic-loss-1", "run.max_critic_loss=1"), ("lr-1", "ppo.lr=1.0")):
         cases.append(Case("cli", f"train-ppo-{name}", ppo + ["--set", item], codes=(3,), timeout=300.0))
-    gru = ppo + ["--set", "ppo.recurrent=gru", "--set", "ppo.lr=1.0"]
+    gru = ppo + ["--set", "ppo.recurrent=gru", "--set", "ppo.minibatches=1", "--set", "ppo.lr=1.0"]
     cases.append(Case("cli", "train-ppo-gru-lr-1", gru, codes=(3,), timeout=300.0))
     small = ["run.episodes=2", "run.chunk_episodes=1", "env.episode_length=32"]
     base = fx.sweep_file("base-shipped-name", {"base": "thesis/flddpg", "set": small})

@@ -57,7 +57,9 @@ def test_the_estimate_counts_update_and_rooms_and_bounds_room_generation():
     ROOM_BATCH rooms (drawn a batch at a time)."""
     small, big = memory_estimate(trainer("ppo", 64)), memory_estimate(trainer("ppo", 8192))
     assert big["update"] == 128 * small["update"]
-    assert small["rooms"] == trooms.generation_bytes(5 * 64) < big["rooms"] == trooms.generation_bytes(trooms.ROOM_BATCH)
+    assert (
+        small["rooms"] == trooms.generation_bytes(5 * 64) < big["rooms"] == trooms.generation_bytes(trooms.ROOM_BATCH)
+    )
     assert big["total"] > 8 * 2**30  # was 4.0 GiB before the update and the compiler were counted
 
 

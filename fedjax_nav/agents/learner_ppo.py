@@ -105,10 +105,9 @@ def due(nets: OnPolicyNets, g, rows: int, hp):
 # f32 values per minibatch row of one update beside the stored rollout: (5 depth + 3) x hidden for
 # the actor and the value net together (forward and backward; networks.ACTIVATIONS_PER_LAYER), 24
 # per GRU unit (the gates and states of both networks' GRUs over the sequence), and ROLLOUT_COPIES
-# copies of the rollout (the epoch's permuted copy, advantages and returns). Measured against XLA
-# CPU's temporaries of the compiled update of 5 networks, 64 and 256 environments: 1.1-1.3x them
-# (tests/test_memory_estimate.py).
-ROLLOUT_COPIES = 2
+# copies of the rollout (the epoch's permuted copy). Measured against XLA CPU's temporaries of the
+# compiled update of 5 networks, 64 and 256 environments: 1.04-1.07x them (tests/test_memory_estimate.py).
+ROLLOUT_COPIES = 1
 GRU_VALUES = 24
 
 

@@ -32,6 +32,11 @@ METRICS_ROW_BYTES = 16 * 8 * 3
 # system after): the peak RSS growth of a run minus its other parts, 0.98-1.08 GB for DDPG, PPO and
 # GRU-PPO at 64 environments per robot (learners/*.yaml; scripts/memory_check.py).
 COMPILER_BYTES = 1_200 * 2**20
+# Bytes per environment beyond its state: XLA's temporaries of one step (the lidar's per-beam work,
+# 5.6 KB at 5 x 16,384 environments of the thesis rooms) and what the initial state's program and
+# the host copies hold per environment, not taken apart: the peak RSS growth of SAC at 5 x 65,536
+# environments of the thesis rooms beyond every other part was 15.9 KB per environment.
+ENV_STEP_BYTES = 18_000
 
 
 class ResourceError(ConfigError):
@@ -42,12 +47,12 @@ def memory_estimate(trainer: Trainer) -> dict[str, int]:
     """Bytes of a run of `trainer.cfg` by part (every seed): "buffers" (replay rows or rollouts),
     "networks" (actors, critics, targets, Adam states, the aggregator's models), "env" (env states,
     observations, counters, the rooms), "update" (one update of every network at once: the
-    learner's `update_bytes`), "rooms" (drawing the rooms: `training.rooms.generation_bytes`),
-    "compiler" (compiling the program), "metrics" (host tables of every episode), "worlds", and
-    "total": the state parts times STATE_BYTES_FACTOR (a chunk's peak: the donated state, its
-    outputs, the checkpoint's host copy) plus the others. Measured against the peak RSS of runs of
-    every learner at 64, 1,024 and 8,192 environments per robot: 1.1-1.4x it, never below
-    (scripts/memory_check.py; docs/reliability.md)."""
+    learner's `update_bytes`), "steps" (ENV_STEP_BYTES per environment), "rooms" (drawing the
+    rooms: `training.rooms.generation_bytes`), "compiler" (compiling the program), "metrics" (host
+    tables of every episode), "worlds", and "total": the state parts times STATE_BYTES_FACTOR (a
+    chunk's peak: the donated state, its outputs, the checkpoint's host copy) plus the others.
+    Measured against the peak RSS of real runs of every learner at 64, 1,024 and 8,192 environments
+    per robot (scripts/memory_check.py, results/memory_check.csv; docs/reliability.md)."""
     cfg = trainer.cfg
     hp = hparams_from_config(cfg)
     shapes = jax.eval_shape(lambda k: trainer.init(k, hp), jax.random.key(0))
@@ -56,16 +61,19 @@ def memory_estimate(trainer: Trainer) -> dict[str, int]:
     networks = (nbytes(shapes.agents) + nbytes(shapes.agg_state)) * S
     env = nbytes(shapes) * S - buffers - networks
     update = trainer.learner.update_bytes(trainer.nets, trainer.obs_size, trainer.writes) * trainer.n_nets * S
+    steps = ENV_STEP_BYTES * cfg.num_robots * cfg.env.envs_per_robot * S
     largest = max((len(idx) for _, idx in trainer.rooms.groups), default=0) if trainer.rooms.procedural else 0
     rooms = generation_bytes(largest) * S
     metrics = cfg.run.episodes * S * cfg.num_robots * METRICS_ROW_BYTES
     worlds = nbytes(trainer.world)
-    total = STATE_BYTES_FACTOR * (buffers + networks + env) + update + rooms + COMPILER_BYTES + metrics + worlds
+    total = STATE_BYTES_FACTOR * (buffers + networks + env) + update + steps + rooms + COMPILER_BYTES
+    total += metrics + worlds
     return {
         "buffers": buffers,
         "networks": networks,
         "env": env,
         "update": update,
+        "steps": steps,
         "rooms": rooms,
         "compiler": COMPILER_BYTES,
         "metrics": metrics,
@@ -92,6 +100,7 @@ def check_memory(trainer: Trainer, budget: int | None = None, src: str = "config
         "networks": f"{row.actor_section}.hidden",
         "env": "env.envs_per_robot",
         "update": row.update_size,
+        "steps": "env.envs_per_robot",
         "rooms": "env.envs_per_robot",
         "metrics": "run.episodes",
         "worlds": "env.worlds",
