@@ -21,7 +21,7 @@ LAYERS = [
     ["runlock"],  # the run lock imports rundir (its file names and errors)
     ["training"],
     ["evaluation", "analysis"],
-    ["experiments", "deploy"],
+    ["experiments", "deploy", "fleet"],  # fleet: the Flower app (docs/fleet.md), a leaf nothing imports
     ["cli", "__main__"],
 ]
 RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}

@@ -79,31 +79,51 @@ def federated_round(rnd: Round, state, hp: HParams) -> tuple[object, dict]:
     aggregator's state is unchanged. Returns the state and {"clients": i32 (clients that
     exchanged), "skipped": i32 (1 if skipped)}. With participation 1, min_clients <= robots
     and no attack this is exactly the thesis's round (every draw comes from
-    fold_in(key, FED_STREAM): the run's key stream is untouched)."""
-    r = state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
-    own = rnd.shared(state.agents)
-    k_part, k_attack = jax.random.split(jax.random.fold_in(state.key, FED_STREAM))
+    fold_in(key, FED_STREAM): the run's key stream is untouched). Its three halves
+    (`sent`, `exchange`, `settle`) are also the Flower fleet's (docs/fleet.md)."""
+    own, r = sent(rnd, state)
+    new, agg_state, stats = exchange(rnd, hp, own, r, state.key, state.agg_state)
+    return settle(rnd, state, new, agg_state), stats
+
+
+def sent(rnd: Round, state) -> tuple[dict, jax.Array]:
+    """What the clients send: (their shared fields, leaves [clients, ...]; their mean reward per
+    step since the last round, f32[clients])."""
+    return rnd.shared(state.agents), state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
+
+
+def exchange(rnd: Round, hp: HParams, own: dict, r: jax.Array, key: jax.Array, agg_state) -> tuple[dict, object, dict]:
+    """The server's half of a round, over what every client sent (`sent`): who takes part (drawn
+    from fold_in(key, FED_STREAM), `key` the run's key at the round), the attack on the
+    Byzantine clients' sends, the aggregator's update. Returns (what each client holds after the
+    round, the aggregator's new state, the round's stats); see `federated_round`."""
+    k_part, k_attack = jax.random.split(jax.random.fold_in(key, FED_STREAM))
     mask = participation(rnd, k_part, hp)
     n = jnp.sum(mask.astype(jnp.int32))
     held = n >= jnp.maximum(hp.fed.min_clients, 1)
-    sent, r_sent = own, r
+    out, r_sent = own, r
     has_byzantine = bool(rnd.byzantine.any())
     if rnd.attack != "none" and has_byzantine:
         byz = jnp.asarray(rnd.byzantine)
-        ref = agg.reference(state.agg_state) if rnd.attack in attacks.NEEDS_REFERENCE else None
-        sent = attacks.apply_attack(rnd.attack, own, byz, k_attack, hp.fed.attack_scale, ref)
+        ref = agg.reference(agg_state) if rnd.attack in attacks.NEEDS_REFERENCE else None
+        out = attacks.apply_attack(rnd.attack, own, byz, k_attack, hp.fed.attack_scale, ref)
         if rnd.sends_rewards:
             r_sent = attacks.inflate_reward(r, byz)
-    new, agg_state = aggregator(rnd, hp).update(sent, r_sent, state.agg_state, mask)
-    take = held & jnp.asarray(~rnd.byzantine)  # absent rows of `new` are already `sent` = own
+    new, new_state = aggregator(rnd, hp).update(out, r_sent, agg_state, mask)
+    take = held & jnp.asarray(~rnd.byzantine)  # absent rows of `new` are already `out` = own
     new = (
         agg.keep_absent(new, own, take) if has_byzantine else jax.tree.map(lambda a, b: jnp.where(held, a, b), new, own)
     )
-    agg_state = jax.tree.map(lambda a, b: jnp.where(held, a, b), agg_state, state.agg_state)
-    stats = {"clients": jnp.where(held, n, 0), "skipped": (~held).astype(jnp.int32)}
+    new_state = jax.tree.map(lambda a, b: jnp.where(held, a, b), new_state, agg_state)
+    return new, new_state, {"clients": jnp.where(held, n, 0), "skipped": (~held).astype(jnp.int32)}
+
+
+def settle(rnd: Round, state, new: dict, agg_state):
+    """The clients' half after the exchange: `new` (what `exchange` sent back) in place, the
+    aggregator's state kept, the reward sums of the next round started."""
     return state.replace(
         agents=rnd.take_shared(state.agents, new),
         agg_state=agg_state,
         reward_sum=jnp.zeros_like(state.reward_sum),
         reward_steps=jnp.float32(0),
-    ), stats
+    )

@@ -49,7 +49,7 @@ from fedjax_nav.agents.distributions import ACTION_HIGH, ACTION_LOW
 from fedjax_nav.agents.learners import Record
 from fedjax_nav.config import Config, envs, values
 from fedjax_nav.env.nav import EnvParams
-from fedjax_nav.training import federation
+from fedjax_nav.training import federation, slices
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config
 from fedjax_nav.training.metrics import Facts
 from fedjax_nav.training.probe import Probe
@@ -88,13 +88,15 @@ class Trainer:
     real: np.ndarray  # bool[clients]: not padding
     byzantine: np.ndarray  # bool[clients]: the last fed.byzantine real clients
     round: federation.Round  # what a federated round needs
+    fleet: tuple[int, int]  # (first, total): robots first.. of a run of `total` (training.slices)
+    rounds: bool  # the federated round is in the program (not held outside it: `fleet` given)
 
-    def __init__(self, cfg: Config, pad: int = 0):
+    def __init__(self, cfg: Config, pad: int = 0, fleet: tuple[int, int] | None = None):
         """`pad` > 0 appends that many permanently masked clients (copies of the last robot's
         room) so that the client axis divides over a mesh's devices: they never take part in a
         federated round, their metrics are dropped, and the real robots' numbers equal the
         unpadded run's to float32 round-off (their PRNG keys are the same: split(k, n + pad)
-        begins with split(k, n))."""
+        begins with split(k, n)). `fleet`: see the field (its rounds are held outside, docs/fleet.md)."""
         method = methods.get(cfg.method)
         # one shared network or buffer cannot be split over devices: no padding (check_mesh says so)
         n_real, pad = cfg.num_robots, 0 if method.shared_network or method.shared_buffer else int(pad)
@@ -132,6 +134,8 @@ class Trainer:
             real=real,
             byzantine=byzantine,
             round=federation.describe(cfg.fed, method, learner, real, byzantine),
+            fleet=(0, n) if fleet is None else (int(fleet[0]), int(fleet[1])),
+            rounds=method.aggregator != "none" and fleet is None,
         )
         for name, value in fields.items():
             object.__setattr__(self, name, value)
@@ -160,21 +164,31 @@ class Trainer:
         """What a client sends in a federated round (`federation.Round.shared`)."""
         return self.round.shared(agents)
 
-    def take_shared(self, agents, new: dict):
-        """The agents with what a federated round sent back (`shared`'s keys) put in place."""
-        return self.round.take_shared(agents, new)
-
     def policy(self, agents):
         """The greedy policies' parameters (leaves [n_nets, ...]): what the probe drives."""
         return self.learner.policy(agents)
 
+    def _split(self, key: jax.Array, per_robot: int, draw=None) -> jax.Array:
+        """Our robots' rows of a per-robot draw (`slices.rows`; split(key, rows) by default)."""
+        draw = draw or (lambda n: jax.random.split(key, n))
+        return slices.rows(draw, per_robot, self.num_robots, self.fleet) if per_robot else draw(1)
+
     # ------------------------------------------------------------------ init
+
+    def init_agents(self, key: jax.Array, hp: HParams):
+        """One seed's initial agents (`init`'s): every agent its own initialisation key."""
+        k_nets = jax.random.split(key, 3)[0]
+        init = lambda k: self.learner.init(self.nets, k, self.obs_size, hp)
+        return jax.vmap(init)(self._split(k_nets, not self.method.shared_network))
+
+    def init_agg_state(self, agents, hp: HParams):
+        """The aggregator's initial state over the initial agents (the padding clients left out)."""
+        return self.aggregator(hp).init(self.real_rows(self.shared(agents)))
 
     def init(self, key: jax.Array, hp: HParams) -> TrainState:
         """One seed's initial state. Every agent gets its own initialisation key."""
         L = self.learner
-        k_nets, k_env, k_run = jax.random.split(key, 3)
-        agents = jax.vmap(lambda k: L.init(self.nets, k, self.obs_size, hp))(jax.random.split(k_nets, self.n_nets))
+        agents, (_, k_env, k_run) = self.init_agents(key, hp), jax.random.split(key, 3)
         buffers = jax.vmap(lambda _: L.storage(self.nets, self.obs_size, self.writes))(jnp.arange(self.n_bufs))
         optional = {}  # the fields that are None unless the run has procedural rooms / a learner memory
         if self.rooms.procedural:
@@ -183,7 +197,7 @@ class Trainer:
             if self.rooms.learnability:  # its slot 0 holds block 0's room: the world just drawn
                 optional["bank"] = self.rooms.init_bank(stream)
         params = self.env_params(hp, optional.get("world"))
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_env, self.num_envs), params)
+        obs, env_state = jax.vmap(self.env.reset)(self._split(k_env, self.envs_per_robot), params)
         memory = L.memory(self.nets)
         if memory is not None:
             optional["memory"] = jax.tree.map(lambda x: jnp.broadcast_to(x, (self.num_envs, *x.shape)), memory)
@@ -195,7 +209,7 @@ class Trainer:
             env_state=env_state,
             obs=obs,
             explore=self.learner.explore_init(hp),
-            agg_state=self.aggregator(hp).init(self.real_rows(self.shared(agents))),
+            agg_state=self.init_agg_state(agents, hp),
             reward_sum=jnp.zeros(self.num_robots),
             reward_steps=jnp.float32(0),
             key=k_run,
@@ -234,7 +248,7 @@ class Trainer:
         def one(agent, obs, k, memory, first):
             return self.learner.explore(self.nets, agent, obs, k, hp, state.explore, memory, first)
 
-        keys = jax.random.split(key, self.num_envs)
+        keys = self._split(key, self.envs_per_robot)
         return self._by_net(one, state.agents, state.obs, keys, state.memory, state.first)
 
     def _act(self, state: TrainState, key: jax.Array, hp: HParams | None = None) -> jax.Array:
@@ -251,7 +265,7 @@ class Trainer:
         def one(agent, buf, k):
             return self.learner.update(self.nets, agent, buf, k, g, self.writes, hp)
 
-        keys = jax.random.split(key, self.n_nets)
+        keys = self._split(key, not self.method.shared_network)
         buf_axis = 0 if self.n_bufs == self.n_nets else None
         bufs = buffers if buf_axis == 0 else jax.tree.map(lambda b: b[0], buffers)
         return jax.vmap(one, in_axes=(0, buf_axis, 0))(agents, bufs, keys)
@@ -267,11 +281,11 @@ class Trainer:
         key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
         actions, extra, memory = self._explore(state, k_act, hp)
         if not L.on_policy:  # the warm-up (offpolicy.random_steps): its own key, the other streams unchanged
-            warm = jax.random.uniform(
-                jax.random.fold_in(k_act, 1), actions.shape, minval=ACTION_LOW, maxval=ACTION_HIGH
-            )
+            k = jax.random.fold_in(k_act, 1)
+            draw = lambda n: jax.random.uniform(k, (n, *actions.shape[1:]), minval=ACTION_LOW, maxval=ACTION_HIGH)
+            warm = self._split(k, self.envs_per_robot, draw)
             actions = jnp.where(g < hp.offpolicy.random_steps, warm, actions)
-        env_keys = jax.random.split(k_env, self.num_envs)
+        env_keys = self._split(k_env, self.envs_per_robot)
         obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
             env_keys, state.env_state, actions, env_params
         )
@@ -314,7 +328,7 @@ class Trainer:
             # a collision (terminated) or the episode's time-out (truncated, the last step only)
             outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
         fed_now, fs = jnp.bool_(False), NO_ROUND
-        if self.method.aggregator != "none" and self.cfg.fed.period_unit == "steps":
+        if self.rounds and self.cfg.fed.period_unit == "steps":
             fed_now = (g + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
         out = StepMetrics(
@@ -335,7 +349,7 @@ class Trainer:
         state, world = self.rooms.episode_world(state, hp, ep)  # new rooms / placements when configured
         env_params = self.env_params(hp, world)
         key, k_reset = jax.random.split(state.key)
-        obs, env_state = jax.vmap(self.env.reset)(jax.random.split(k_reset, self.num_envs), env_params)
+        obs, env_state = jax.vmap(self.env.reset)(self._split(k_reset, self.envs_per_robot), env_params)
         first = None if state.first is None else jnp.ones_like(state.first)
         state = state.replace(obs=obs, env_state=env_state, key=key, first=first)
         steps = ep * self.T + jnp.arange(self.T)
@@ -351,7 +365,7 @@ class Trainer:
         if self.rooms.learnability:  # the episode's goal share scores each environment's room
             state = state.replace(bank=self.rooms.score(state.bank, hp, sums.env_goals, sums.env_attempts))
         fed_end, fs = jnp.int32(0), NO_ROUND
-        if self.method.aggregator != "none" and self.cfg.fed.period_unit == "episodes":
+        if self.rounds and self.cfg.fed.period_unit == "episodes":
             fed_now = (ep + 1) % hp.fed.period == 0
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)

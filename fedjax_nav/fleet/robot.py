@@ -1,0 +1,92 @@
+"""One robot of a fleet (a Flower client, docs/fleet.md): its slice of the run's compiled program
+(`Trainer(fleet=(i, robots))`: robot i's rooms, learner and key stream, no round compiled in),
+run fed.period episodes a round. Between rounds its whole training state is a flat dict of arrays
+(`wire.pack`), which the Flower client keeps in its context. The round itself is
+`training.federation`'s: the robot `sent`s, the server `exchange`s, the robot `settle`s."""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fedjax_nav import methods
+from fedjax_nav.config import Config
+from fedjax_nav.fleet import wire
+from fedjax_nav.training import federation
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
+
+
+class FleetError(ValueError):
+    """A config the fleet cannot run (one line naming the field)."""
+
+
+def check(cfg: Config) -> None:
+    """Refuse what this first fleet does not hold (docs/fleet.md, "What is left")."""
+    method = methods.get(cfg.method)
+    refusals = [
+        (method.shared_network or method.shared_buffer, "method", f"{cfg.method} shares one network or buffer"),
+        (cfg.fed.period_unit != "episodes", "fed.period_unit", "rounds between steps of an episode"),
+        (cfg.env.rooms != "fixed", "env.rooms", "procedural rooms"),
+        (cfg.env.placement != "fixed", "env.placement", "random placement"),
+        (cfg.run.eval_every != 0, "run.eval_every", "the held-out probe"),
+        (cfg.run.seeds != 1, "run.seeds", "more than one seed (one fleet is one seed)"),
+        (cfg.run.episodes % cfg.fed.period != 0, "run.episodes", "a last round that is not whole (fed.period)"),
+    ]
+    for bad, field, what in refusals:
+        if bad:
+            raise FleetError(f"{field}: the fleet does not run {what} yet (docs/fleet.md)")
+
+
+def rounds(cfg: Config) -> int:
+    """The run's federated rounds: run.episodes / fed.period."""
+    return cfg.run.episodes // cfg.fed.period
+
+
+class Robot:
+    """Robot `index`'s program of the run `cfg` (one seed: cfg.run.seed), compiled once."""
+
+    def __init__(self, cfg: Config, index: int):
+        check(cfg)
+        if not 0 <= index < cfg.num_robots:
+            raise FleetError(f"partition-id: robot {index} of a run of {cfg.num_robots} (env.worlds)")
+        mine = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, worlds=(cfg.env.worlds[index],)))
+        self.cfg, self.index = cfg, index
+        self.trainer = Trainer(mine, fleet=(index, cfg.num_robots))
+        self.hp = hparams_from_config(mine)
+        self._chunk = self.trainer.compiled_chunk(cfg.fed.period)
+
+    def init(self):
+        """The robot's initial state, stacked over the run's one seed."""
+        return self.trainer.init_seeds(jnp.asarray([self.cfg.run.seed]), self.hp)
+
+    @cached_property
+    def template(self):
+        return jax.eval_shape(self.init)
+
+    def load(self, arrays: dict[str, np.ndarray]):
+        return wire.unpack(self.template, arrays)
+
+    def train(self, states, round_index: int):
+        """fed.period episodes from episode round_index * fed.period: (states, metrics [1, E, ...])."""
+        first = jnp.int32(round_index * self.cfg.fed.period)
+        return self._chunk(states, self.hp, first)
+
+    def sent(self, states) -> dict[str, np.ndarray]:
+        """What the robot sends (`federation.sent`): its shared fields ("shared…" paths, leaves
+        [1, ...]), its mean reward ("reward", f32[1]) and the run's key at the round ("key")."""
+        own, r = jax.vmap(lambda s: federation.sent(self.trainer.round, s))(states)
+        out = {"shared" + k: v[0] for k, v in wire.pack(own).items()}
+        return out | {"reward": np.asarray(r[0]), "key": np.asarray(jax.random.key_data(states.key[0]))}
+
+    def settle(self, states, new: dict[str, np.ndarray]):
+        """The states with the server's answer in place (`federation.settle`; `new` in `sent`'s
+        "shared…" form, leaves [1, ...])."""
+        own = jax.eval_shape(lambda s: self.trainer.shared(s.agents), jax.tree.map(lambda x: x[0], states))
+        taken = wire.unpack(own, {k.removeprefix("shared"): v for k, v in new.items() if k.startswith("shared")})
+        settle = lambda s, n: federation.settle(self.trainer.round, s, n, s.agg_state)
+        return jax.vmap(settle)(states, jax.tree.map(lambda x: x[None], taken))

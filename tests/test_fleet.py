@@ -1,0 +1,82 @@
+"""Real fleets on Flower (docs/fleet.md): the package stays free of Flower; a robot's slice of the
+program draws that robot's keys; the Flower simulation of a 2-robot FLDDPG run ends where the
+in-program run ends (to float32 round-off) and leaves a normal run directory."""
+
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fedjax_nav import rundir
+from fedjax_nav.config import load_config
+from fedjax_nav.fleet.robot import FleetError, check
+from fedjax_nav.training.hparams import hparams_from_config
+from fedjax_nav.training.trainer import Trainer
+
+TINY = [
+    "env.episode_length=16",
+    "offpolicy.batch_size=8",
+    "offpolicy.buffer_size=64",
+    "offpolicy.hidden=16",
+    "offpolicy.random_steps=8",
+    "offpolicy.train_every=2",
+    "run.checkpoint_every=0",
+    "env.worlds=[train-0,train-2]",
+    "run.episodes=4",
+    "fed.period=2",
+]
+
+
+def test_the_package_and_its_cli_import_no_flower():
+    code = "import sys, fedjax_nav, fedjax_nav.cli, fedjax_nav.fleet.server; print('flwr' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(
+    "override, field",
+    [("method=seddpg", "method"), ("fed.period_unit=steps", "fed.period_unit"), ("run.seeds=2", "run.seeds")],
+)
+def test_what_the_fleet_does_not_run_is_refused_naming_the_field(override, field):
+    with pytest.raises(FleetError, match=f"^{field}: "):
+        check(load_config("thesis/flddpg", TINY + [override]))
+
+
+def test_a_one_robot_slice_draws_that_robots_keys():
+    """Robot 1 of a 2-robot IDDPG run, alone in its program (Trainer(fleet=(1, 2))), after one episode."""
+    import dataclasses
+
+    cfg = load_config("thesis/iddpg", TINY)
+    whole, hp = Trainer(cfg), hparams_from_config(cfg)
+    mine = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, worlds=(cfg.env.worlds[1],)))
+    part = Trainer(mine, fleet=(1, 2))
+    a, _ = jax.jit(whole.episode)(whole.init(jax.random.key(0), hp), hp, jnp.int32(0))
+    b, _ = jax.jit(part.episode)(part.init(jax.random.key(0), hp), hp, jnp.int32(0))
+    assert float(a.reward_sum[1]) == pytest.approx(float(b.reward_sum[0]), rel=1e-6)
+    for x, y in zip(jax.tree.leaves(a.agents), jax.tree.leaves(b.agents)):
+        np.testing.assert_allclose(np.asarray(x[1]), np.asarray(y[0]), rtol=1e-5, atol=1e-6)
+
+
+def test_the_flower_simulation_ends_where_the_program_ends(tmp_path):
+    pytest.importorskip("flwr")
+    pytest.importorskip("ray")
+    from fedjax_nav.fleet.apps import run_simulation
+
+    cfg = load_config("thesis/flddpg", TINY)
+    tr, hp = Trainer(cfg), hparams_from_config(cfg)
+    states = tr.init_seeds(jnp.asarray([cfg.run.seed]), hp)
+    states, _ = tr.compiled_chunk(cfg.run.episodes)(states, hp, jnp.int32(0))
+    want = rundir.flatten_params(jax.device_get(tr.learner.shared(states.agents)))
+
+    summary = run_simulation(cfg, tmp_path / "run")
+    assert summary["aggregation_events"] == 2 and summary["fleet"] == "flower"
+    with np.load(tmp_path / "run" / rundir.PARAMS) as got:
+        assert set(got.files) == set(want)
+        for name, value in want.items():
+            np.testing.assert_allclose(got[name], value, rtol=1e-5, atol=1e-6, err_msg=name)
+    df = rundir.read_metrics(tmp_path / "run")
+    assert len(df) == cfg.run.episodes * 2 and df["fed_events"].sum() == 2 * 2  # one per round, on each robot's row
+    assert rundir.read_config(tmp_path / "run") == cfg
