@@ -665,12 +665,17 @@ def third_pass_cases(tr: dict, sw: dict, fx: Fixtures) -> list[Case]:
     thesis = ["--config", "thesis/flddpg", "--episodes", "2", "--set", "env.episode_length=32"]
     thesis += ["--set", "run.chunk_episodes=1", "--out", "{dir}/run", "--quiet"]
     cases = []
-    for learner in ("sac", "ppo"):
-        for envs, budget in (("65536", "1G"), ("65536", "4G"), ("8192", "2G")):
-            argv = ["train", *thesis, "--set", f"learner={learner}", "--set", f"env.envs_per_robot={envs}"]
-            cases.append(
-                Case("cli", f"train-{learner}-{envs}-envs-budget-{budget}", argv + ["--memory-budget", budget])
-            )
+    # refused below the estimate (1G: below compiling), else trained to the end
+    for learner, envs, budget, expect in (
+        ("sac", "65536", "1G", "refuse"),
+        ("sac", "65536", "4G", "refuse"),  # 7.5 GiB estimated, 7.4 GB measured (docs/reliability.md)
+        ("sac", "8192", "3G", "ok"),
+        ("ppo", "65536", "4G", "refuse"),
+        ("ppo", "8192", "2G", "refuse"),
+    ):
+        argv = ["train", *thesis, "--set", f"learner={learner}", "--set", f"env.envs_per_robot={envs}"]
+        name = f"train-{learner}-{envs}-envs-budget-{budget}"
+        cases.append(Case("cli", name, argv + ["--memory-budget", budget], expect=expect, timeout=900.0))
     ppo = ["train", *thesis, "--set", "learner=ppo", "--set", "ppo.rollout=16"]
     for name, item in (("max-critic-loss-1", "run.max_critic_loss=1"), ("lr-1", "ppo.lr=1.0")):
         cases.append(Case("cli", f"train-ppo-{name}", ppo + ["--set", item], codes=(3,), timeout=300.0))
