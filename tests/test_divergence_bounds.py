@@ -87,6 +87,7 @@ def test_a_healthy_ppo_run_with_the_default_bounds_finishes(cfg_file, tmp_path):
     assert len(df) == 4 * ROBOTS and (df.approx_kl < 1).all() and (df.entropy.abs() < 5).all()
 
 
+@pytest.mark.full  # four tiny PPO runs, the first compiles (~50 s cold)
 @pytest.mark.parametrize(
     "setting, needles, good",
     [
