@@ -102,23 +102,24 @@ def due(nets: OnPolicyNets, g, rows: int, hp):
     return (g + 1) % nets.rollout == 0
 
 
-# f32 values per minibatch row of one update beside the stored rollout: (5 depth + 3) x hidden for
-# the actor and the value net together (forward and backward; networks.ACTIVATIONS_PER_LAYER), 24
-# per GRU unit (the gates and states of both networks' GRUs over the sequence), and ROLLOUT_COPIES
-# copies of the rollout (the epoch's permuted copy). Measured against XLA CPU's temporaries of the
-# compiled update of 5 networks, 64 and 256 environments: 1.04-1.07x them (tests/test_memory_estimate.py).
+# f32 values per rollout row (every environment's every step) of one update beside the stored
+# rollout: a quarter of (5 depth + 3) x hidden (networks.ACTIVATIONS_PER_LAYER) and 6 per GRU unit,
+# and ROLLOUT_COPIES copies of the rollout (the epoch's permuted copy). Measured: XLA CPU's
+# temporaries of the compiled update of 5 networks do not depend on ppo.minibatches (GRU-PPO at 64
+# environments: 99.9 MB with 4 and with 32; PPO 42.4 MB), and this gives 1.04-1.08x them at 64 and
+# 256 environments (tests/test_memory_estimate.py).
 ROLLOUT_COPIES = 1
-GRU_VALUES = 24
+GRU_VALUES = 6
 
 
 def update_bytes(nets: OnPolicyNets, obs_size: int, rows: int) -> int:
     """Peak bytes of one update beyond the agent's state and its stored rollout: ROLLOUT_COPIES
-    copies of the rollout, and one minibatch's activations of both networks."""
+    copies of the rollout, and the per-row values of both networks over the whole rollout."""
     p, T = nets.ppo, nets.rollout
     shapes = jax.eval_shape(lambda: storage(nets, obs_size, rows))
     rollout = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes))
-    per_row = (ACTIVATIONS_PER_LAYER * p.actor.depth + ACTIVATIONS_OUTSIDE) * p.actor.hidden + GRU_VALUES * p.gru
-    return ROLLOUT_COPIES * rollout + 4 * per_row * (T * rows // p.minibatches)
+    per_row = (ACTIVATIONS_PER_LAYER * p.actor.depth + ACTIVATIONS_OUTSIDE) * p.actor.hidden // 4 + GRU_VALUES * p.gru
+    return ROLLOUT_COPIES * rollout + 4 * per_row * T * rows
 
 
 def update(nets: OnPolicyNets, state, ro, key, g, rows: int, hp):
