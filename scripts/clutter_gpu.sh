@@ -17,7 +17,7 @@ PY
 python3 -c "import jax; print('devices', jax.devices())" | tee "$OUT/devices.txt"
 start=$(date +%s)
 timeout -s INT "$TRAIN_S" python3 -m fedjax_nav.cli train --config learners/ppo-gru $SETS \
-  --set method="$METHOD" --set run.seeds="$SEEDS" ${EXTRA:-} --out "$RUN" --overwrite 2>&1 | tr '\r' '\n' | tee "$OUT/train.log" | tail -5
+  --set method="$METHOD" --set run.seeds="$SEEDS" --set run.episodes="${EPISODES:-38}" ${EXTRA:-} --out "$RUN" --overwrite 2>&1 | tr '\r' '\n' | tee "$OUT/train.log" | tail -5
 echo "train wall $(( $(date +%s) - start )) s" | tee -a "$OUT/train.log"
 for suite in dense-heldout indoor-heldout heldout; do
   python3 -m fedjax_nav.cli evaluate "$RUN" --suite "$suite" --no-figures 2>&1 | tail -12 | tee -a "$OUT/eval.log"
