@@ -1,7 +1,7 @@
 """The memory estimate against the measured peak (docs/reliability.md, "Memory for many
 environments"): for every learner and number of environments per robot, a fresh process trains
 two episodes of 256 steps (learners/<name>.yaml, procedural rooms, 1 seed) and reports its peak RSS
-growth over the RSS before `train` (`resource.getrusage`), beside `training.resources.memory_estimate`.
+growth over the RSS before `train` (VmHWM, /proc/self/status), beside `training.resources.memory_estimate`.
 
     python scripts/memory_check.py                              # 5 learners x 64, 1024, 8192 (~40 min on 2 cores)
     python scripts/memory_check.py --learners ppo --envs 64     # one case
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -36,6 +35,16 @@ SETS = ["env.episode_length=256", "run.episodes=2", "run.chunk_episodes=2", "run
 EXTRA = {("ppo-gru", 8192): ("ppo.minibatches=32",)}
 
 
+def peak_rss() -> int:
+    """This process's peak RSS in bytes: VmHWM, the high-water mark of its own address space.
+    Not `getrusage`'s ru_maxrss: Linux carries that across exec, so a child spawned by a big
+    process (a pytest worker) reports its parent's peak."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise RuntimeError("/proc/self/status has no VmHWM line: the peak RSS is measured on Linux only")
+
+
 def one(config: str, envs: int, extra=()) -> dict:
     """In this process: train the case and return its measured peak growth and the estimate."""
     from fedjax_nav.config import load_config
@@ -48,8 +57,7 @@ def one(config: str, envs: int, extra=()) -> dict:
     before = int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     with tempfile.TemporaryDirectory() as d:
         train(cfg, Path(d) / "run", progress=False)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    return {"measured": peak - before, "estimate": est["total"], "parts": est}
+    return {"measured": peak_rss() - before, "estimate": est["total"], "parts": est}
 
 
 def estimate(config: str, envs: int, extra=()) -> dict:
