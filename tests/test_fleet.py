@@ -38,7 +38,12 @@ def test_the_package_and_its_cli_import_no_flower():
 
 @pytest.mark.parametrize(
     "override, field",
-    [("method=seddpg", "method"), ("fed.period_unit=steps", "fed.period_unit"), ("run.seeds=2", "run.seeds")],
+    [
+        ("method=seddpg", "method"),
+        ("fed.period_unit=steps", "fed.period_unit"),
+        ("run.seeds=2", "run.seeds"),
+        ("env.shared_rooms=true", "env.shared_rooms"),
+    ],
 )
 def test_what_the_fleet_does_not_run_is_refused_naming_the_field(override, field):
     with pytest.raises(FleetError, match=f"^{field}: "):

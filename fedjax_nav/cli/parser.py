@@ -303,9 +303,9 @@ def add_reproduce(sub) -> None:
 
 
 def add_bench(sub) -> None:
-    """`bench`: env, train and sweep throughput."""
-    p = sub.add_parser("bench", help="measure throughput (env, train, sweep, all)")
-    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "all"])
+    """`bench`: env, train, sweep and shared-room throughput."""
+    p = sub.add_parser("bench", help="measure throughput (env, train, sweep, shared rooms, all)")
+    p.add_argument("what", nargs="?", default="env", choices=["env", "train", "sweep", "shared", "all"])
     p.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
     p.add_argument("--record", default=None, help="append the results to this markdown file")
     p.set_defaults(func=_bench)

@@ -142,6 +142,12 @@ class EnvConfig:
         doc="environments each robot (federated client) steps at once, all feeding its learner; each "
         "draws its own starts and, with procedural rooms, its own room (static; 1 = the thesis)",
     )
+    shared_rooms: bool = _f(
+        False,
+        doc="environment j of every robot is one room: the fleet drives in it together, each robot to its own "
+        "goal, seeing the others in its lidar; a contact of two robots is a collision of both "
+        "(static; false = every robot alone; docs/shared_rooms.md)",
+    )
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from fedjax_nav import worlds as _worlds
@@ -30,6 +31,7 @@ from fedjax_nav.env.spaces import Box
 from fedjax_nav.worlds import World
 
 MODES = ("learn", "eval")
+NO_SEGMENTS = np.zeros((1, 4), np.float32)  # one zero-length row (never hit): a cast against circles only
 COLLISION_TESTS = ("exact", "lidar")
 
 
@@ -139,15 +141,28 @@ class NavEnv:
 
     # ------------------------------------------------------------------ pieces
 
-    def ranges(self, pose: jax.Array, params: EnvParams) -> jax.Array:
+    def ranges(self, pose: jax.Array, params: EnvParams, others: jax.Array | None = None) -> jax.Array:
         """The true scan at `pose`: f32[num_beams], or with robot=True f32[scan_samples] cast from
-        the lidar's position (`observe` turns it into the observation's beams)."""
+        the lidar's position (`observe` turns it into the observation's beams). `others`: the other
+        robots of a shared room as circles f32[K, 3] (r = 0 rows: no robot), cast apart and
+        merged by the minimum (the room's own cast is unchanged)."""
         w = params.world
+        scan = self._cast(w.segments, w.circles, pose, params)
+        if others is not None:
+            scan = jnp.minimum(scan, self._cast(NO_SEGMENTS, others, pose, params))
+        return scan
+
+    def _cast(self, segments: jax.Array, circles: jax.Array, pose: jax.Array, params: EnvParams) -> jax.Array:
         if self.robot:
-            return lidar(
-                w.segments, rm.lidar_pose(pose, params.lidar_offset), self.scan_samples, self.max_range, w.circles
-            )
-        return lidar(w.segments, pose, self.num_beams, self.max_range, w.circles)
+            return lidar(segments, rm.lidar_pose(pose, params.lidar_offset), self.scan_samples, self.max_range, circles)
+        return lidar(segments, pose, self.num_beams, self.max_range, circles)
+
+    def radius(self, params: EnvParams) -> jax.Array:
+        """The robot's collision radius: the footprint when the robot model sets one, else D_c;
+        in a shared room the other robots are discs of this radius."""
+        if self.robot:
+            return jnp.where(params.footprint > 0, params.footprint, params.collision_distance)
+        return params.collision_distance
 
     def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams) -> jax.Array:
         if self.robot:
@@ -189,7 +204,7 @@ class NavEnv:
         return self.observe(k_obs, state, start_ranges[state.start_index], params), state
 
     def step(
-        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams, others: jax.Array | None = None
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
         """One control step: `(obs, state, reward, terminated, truncated, info)`.
 
@@ -200,13 +215,22 @@ class NavEnv:
         transition; equal to `obs` on every other step).
         info: `goal`, `collision` (bool), `pose` (after the move, before any reset),
         `clearance` (m to the nearest obstacle, or the shortest beam with collision_test="lidar"),
-        `final_obs`.
+        `final_obs`; with `others`, also `robot_collision` (bool).
 
         One lidar cast per step: at the pose reached. After a reset the start's scan comes from
         `state.start_ranges`, cast once at `reset` (docs/decisions.md, "Terminal observations").
+
+        `others` (a shared room, docs/shared_rooms.md): the other robots at the poses they reached
+        this step, as circles f32[K, 3] (r = 0: no robot). `step` is `settle(move(...))`; a
+        shared room calls the two apart, gathering every robot's reached pose in between.
         """
+        return self.settle(key, state, self.move(key, state, action, params), params, others)
+
+    def move(self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams) -> EnvState:
+        """The first half of `step`: the robot drives; the state at the pose reached (nothing
+        sensed, nothing reset)."""
         # Without noise the key only draws the start after a reset: no split (it costs here).
-        k_act, k_obs, k_reset = jax.random.split(key, 3) if self.noise else (key, key, key)
+        k_act = jax.random.split(key, 3)[0] if self.noise else key
         lo, hi = jnp.array([0.0, -1.0]), jnp.array([1.0, 1.0])
         a = jnp.clip(action, lo, hi)
         a_exec, queue = a, state.cmd_queue
@@ -219,27 +243,39 @@ class NavEnv:
         else:
             pose, vel = unicycle(state.pose, a_exec[0] * params.v_max, a_exec[1] * params.omega_max, params.dt), None
         dist = jnp.linalg.norm(state.goal - pose[:2])
-        moved = state.replace(pose=pose, prev_action=a, dist=dist, t=state.t + 1, vel=vel, cmd_queue=queue)
+        return state.replace(pose=pose, prev_action=a, dist=dist, t=state.t + 1, vel=vel, cmd_queue=queue)
 
+    def settle(
+        self, key: jax.Array, state: EnvState, moved: EnvState, params: EnvParams, others: jax.Array | None = None
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """The second half of `step` (the same `key`): sense at the pose reached, the goal, the
+        collision (with `others`: also two robots closer than twice `radius`), the reward, the
+        reset of learn mode. `state` is the state before `move`."""
+        _, k_obs, k_reset = jax.random.split(key, 3) if self.noise else (key, key, key)
+        pose, dist = moved.pose, moved.dist
         w = params.world
         goal = dist < params.goal_radius
         truncated = moved.t >= self.episode_length
-        ranges = self.ranges(pose, params)
+        ranges = self.ranges(pose, params, others)
         if self.collision_test == "exact":
             clearance = nearest_distance(w.segments, pose[:2], w.circles)
         else:  # the thesis's test: the shortest beam at the new pose
             clearance = jnp.min(ranges)
-        if self.robot:  # the footprint, when set, replaces D_c
-            collision = clearance < jnp.where(params.footprint > 0, params.footprint, params.collision_distance)
-        else:
-            collision = clearance < params.collision_distance
+        collision = clearance < self.radius(params)
+        info = {}
+        if others is not None:  # robot i's disc and robot j's touch: |p_i - p_j| < 2 radius, the same for both
+            info["robot_collision"] = nearest_distance(NO_SEGMENTS, pose[:2], others) < self.radius(params)
+            collision = collision | info["robot_collision"]
         terminated = goal | collision
         final_obs = self.observe(k_obs, moved, ranges, params)
         obs = final_obs
         if self.mode == "learn":
             start = self._start(k_reset, params, moved.t, state.start_ranges)
             moved = jax.tree.map(lambda r, s: jnp.where(terminated, r, s), start, moved)
-            obs = jnp.where(terminated, self.observe(k_obs, moved, state.start_ranges[start.start_index], params), obs)
+            scan = state.start_ranges[start.start_index]
+            if others is not None:  # the start's cached scan, with the robots where they are now
+                scan = jnp.minimum(scan, self._cast(NO_SEGMENTS, others, start.pose, params))
+            obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params), obs)
         reward = (
             params.progress_scale * (state.dist - dist)
             + jnp.where(goal, params.reward_goal, 0.0)
@@ -247,7 +283,13 @@ class NavEnv:
         )
         if self.mode == "eval":
             truncated = truncated & ~terminated
-        info = {"goal": goal, "collision": collision, "pose": pose, "clearance": clearance, "final_obs": final_obs}
+        info = {
+            "goal": goal,
+            "collision": collision,
+            "pose": pose,
+            "clearance": clearance,
+            "final_obs": final_obs,
+        } | info
         return obs, moved, reward, terminated, truncated, info
 
     def _move(self, pose: jax.Array, vel: jax.Array, a_exec: jax.Array, params: EnvParams):

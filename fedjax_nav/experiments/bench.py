@@ -301,6 +301,12 @@ def format_rows(rows: list[dict]) -> str:
                 f"{r['agent_steps_per_s']:,.0f} agent-steps/s steady (epochs of two lengths differenced; "
                 f"brax's own training/sps {r['brax_sps']:,.0f}, with a fixed {r['epoch_fixed_s']:.1f} s per epoch) |"
             )
+        elif r["bench"] == "shared":
+            lines.append(
+                f"| env, shared rooms | {r['robots_per_room']} robots per room x {r['rooms']} procedural "
+                f"mixture rooms, random actions | {r['shared_steps_per_s']:,.0f} agent-steps/s together, "
+                f"{r['separate_steps_per_s']:,.0f} alone: a robot's step costs {r['cost_per_robot']:.2f}x |"
+            )
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:

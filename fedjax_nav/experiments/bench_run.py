@@ -1,4 +1,4 @@
-"""`fedjax-nav bench env|train|sweep|all` (also `python scripts/bench.py`): the rows of
+"""`fedjax-nav bench env|train|sweep|shared|all` (also `python scripts/bench.py`): the rows of
 `experiments/bench.py` and `experiments/bench_learners.py` in one run, printed as a table and, with
 `--record FILE`, appended to a markdown file with the machine, versions and command."""
 
@@ -11,6 +11,7 @@ import jax
 
 from fedjax_nav.experiments.bench import bench_env, bench_train, format_rows, machine, matmul_ceiling
 from fedjax_nav.experiments.bench_learners import bench_learners
+from fedjax_nav.experiments.bench_shared import bench_shared
 from fedjax_nav.experiments.bench_sweep import bench_sweep
 
 
@@ -39,6 +40,10 @@ def main(args) -> int:
         small = (*over, "env.envs_per_robot=4", "ppo.rollout=32") if quick else ()
         rows += bench_learners(small, env_batch=64 if quick else 1280, ceiling=ceiling, brax=not quick)
         rows.append({"bench": "ceiling", "gflops": matmul_ceiling(512 if quick else 2048)})  # again: load drifts
+    if what in ("shared", "all"):
+        rows += bench_shared(
+            ks=(1, 4) if quick else (1, 4, 8, 16), rooms=8 if quick else 64, steps=20 if quick else 200
+        )
     if what in ("sweep", "all"):
         over = ("env.episode_length=64", "offpolicy.batch_size=64") if quick else ()
         rows += bench_sweep(points=2 if quick else 4, episodes=1 if quick else 2, overrides=over)

@@ -33,6 +33,7 @@ def check(cfg: Config) -> None:
         (cfg.fed.period_unit != "episodes", "fed.period_unit", "rounds between steps of an episode"),
         (cfg.env.rooms != "fixed", "env.rooms", "procedural rooms"),
         (cfg.env.placement != "fixed", "env.placement", "random placement"),
+        (cfg.env.shared_rooms, "env.shared_rooms", "shared rooms (one robot per program)"),
         (cfg.run.eval_every != 0, "run.eval_every", "the held-out probe"),
         (cfg.run.seeds != 1, "run.seeds", "more than one seed (one fleet is one seed)"),
         (cfg.run.episodes % cfg.fed.period != 0, "run.episodes", "a last round that is not whole (fed.period)"),

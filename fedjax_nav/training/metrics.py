@@ -88,7 +88,8 @@ def metrics_frame(metrics: dict, cfg: Config, facts: Facts) -> pd.DataFrame:
     )
     if "eval_success" in m:  # run.eval_every: the robot's network on the held-out probe, NaN between
         df["eval_success"] = per_net(m["eval_success"]).ravel()
-    for name in ("room_p", "fresh_rooms"):  # env.room_sampling: learnability (training/rooms.py), per robot
+    # per robot: env.room_sampling learnability (training/rooms.py); env.shared_rooms (env/shared.py)
+    for name in ("room_p", "fresh_rooms", "robot_collisions"):
         if name in m:
             df[name] = tr(m[name]).ravel()
     return df

@@ -49,6 +49,7 @@ import numpy as np
 from flax import struct
 
 from fedjax_nav import worlds
+from fedjax_nav.env import shared
 from fedjax_nav.env.gym_task import place  # random placement: the gymnasium adapters' own draw
 from fedjax_nav.worlds import World, WorldError
 from fedjax_nav.worlds.procedural import generate
@@ -97,9 +98,14 @@ class TrainRooms:
         self.random_placement = e.placement == "random"
         self.learnability = self.procedural and e.room_sampling == "learnability"
         self.bank_size = e.room_bank
+        self.shared, self.per = bool(e.shared_rooms), per  # env.shared_rooms: see `fleet`
         fixed = [worlds.load(w) for w in e.worlds]
+        if self.shared:
+            check_shared(e, fixed, n)
         if not self.procedural:
             self.world = _per_env(worlds.load_many(e.worlds), per)  # N = 1: exactly the fixed program's World
+            if self.shared and not self.random_placement:  # robot i: the room's start i and goal i
+                self.world = _per_env(shared.fixed_fleet(fixed[0], n), per)
             self.families, self.groups = (FIXED,) * n, []
             self.banked = np.zeros(self.num_rooms, bool)
             return
@@ -121,6 +127,8 @@ class TrainRooms:
         self.specs = {f: padded_spec(s, self.shape) for f, s in specs.items()}
         self.world = _per_env(worlds.stack([worlds.pad(w, *self.shape) for w in fixed]), per)  # "fixed" rows
         room_families = [f for f in self.families for _ in range(per)]
+        if self.shared:  # room j of the fleet: generated once (robot 0's rows), every robot's row j
+            room_families = room_families[:per]
         self.banked = np.array([f != FIXED for f in room_families])  # the rows whose rooms are generated
         self.groups = [
             (self.specs[f], np.array([i for i, g in enumerate(room_families) if g == f])) for f in self.specs
@@ -143,11 +151,13 @@ class TrainRooms:
     def rooms_at(self, counters: jax.Array, density=1.0) -> World:
         """Every environment's room from its counter u32[environments] (`train_room_key`: the
         training half of the room seeds); the rows of family "fixed" keep their playground."""
-        world = self.world
+        world = jax.tree.map(lambda x: x[: self.per], self.world) if self.shared else self.world
         for spec, idx in self.groups:
             keys = jax.vmap(train_room_key)(counters[idx])
             rooms = generate_rooms(keys, spec, density)
             world = jax.tree.map(lambda a, b, idx=idx: a.at[idx].set(b.astype(a.dtype)), world, rooms)
+        if self.shared:
+            world = jax.tree.map(lambda x: jnp.tile(x, (self.num_robots,) + (1,) * (x.ndim - 1)), world)
         return world
 
     def episode_world(self, state, hp, ep) -> tuple[object, World]:
@@ -163,10 +173,22 @@ class TrainRooms:
                 lambda: state.world,
             )
             state = state.replace(world=world)
-        if self.random_placement:
+        if self.shared and (self.procedural or self.random_placement):
+            world = self.fleet(world, jax.random.fold_in(state.key, ROOM_STREAM))
+        elif self.random_placement:
             keys = jax.random.split(jax.random.fold_in(state.key, ROOM_STREAM), self.num_rooms)
             world = jax.vmap(place)(world, keys)
         return state, world
+
+    def fleet(self, world: World, key: jax.Array) -> World:
+        """Shared rooms (env/shared.py): every room's robots placed together (`place_fleet`, one key
+        per room), each robot's row holding its own start and goal; rows robot-major, room j the
+        same for every robot. With env.placement fixed robot 0 keeps the room's start 0 and goal 0."""
+        rooms = jax.tree.map(lambda x: x[: self.per], world)  # robot 0's rows: the rooms
+        keep = not self.random_placement
+        place = lambda w, k: shared.place_fleet(w, k, self.num_robots, keep)  # noqa: E731
+        placed = jax.vmap(place)(rooms, jax.random.split(key, self.per))
+        return jax.tree.map(lambda x: x.swapaxes(0, 1).reshape(-1, *x.shape[2:]), placed)  # [per, R] -> [R * per]
 
     # ------------------------------------------------------------ the learnability curriculum
 
@@ -300,3 +322,34 @@ def density(hp, ep) -> jax.Array:
     start = jnp.asarray(hp.env.room_density_start, jnp.float32)
     ramp = start + (1.0 - start) * jnp.minimum(jnp.asarray(ep, jnp.float32) / jnp.maximum(n, 1), 1.0)
     return jnp.where(n > 0, ramp, jnp.float32(1.0))
+
+
+def check_shared(e, fixed: list, robots: int) -> None:
+    """What shared rooms need of a config (`WorldError`, one line naming the field): one room for
+    the fleet (one family; one world when the rooms are fixed), uniform room sampling (the
+    learnability curriculum scores each environment's own room), and, with fixed rooms and fixed
+    placement, a start and a goal per robot in the world."""
+    if e.room_sampling == "learnability":
+        raise WorldError(
+            "env.room_sampling: learnability scores each environment's own room; shared rooms "
+            "(env.shared_rooms) need uniform"
+        )
+    if e.rooms == "procedural" and len(e.room_families) > 1:
+        raise WorldError(
+            f"env.room_families has {len(e.room_families)} entries; shared rooms (env.shared_rooms) "
+            "put the fleet in one room: give one family"
+        )
+    if e.rooms != "procedural" and len(set(e.worlds)) > 1:
+        raise WorldError(
+            f"env.worlds names {len(set(e.worlds))} different worlds; shared rooms (env.shared_rooms) "
+            "put the fleet in one room: give the same world for every robot"
+        )
+    if e.rooms != "procedural" and e.placement == "fixed":
+        w = fixed[0]
+        starts, goals = int(w.num_starts), int(w.num_goals)
+        if min(starts, goals) < robots:
+            raise WorldError(
+                f"env.worlds: '{e.worlds[0]}' has {starts} start(s) and {goals} goal(s) for {robots} "
+                "robots in a shared room (env.shared_rooms); give a start and a goal per robot, "
+                "or env.placement: random"
+            )

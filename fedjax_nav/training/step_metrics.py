@@ -39,6 +39,8 @@ class StepMetrics:
     # env.room_sampling = learnability only (training/rooms.py), None otherwise: per environment
     env_goals: jax.Array | None = None  # i32[environments] 1 on a goal
     env_attempts: jax.Array | None = None  # i32[environments] 1 where an attempt ends (goal, collision, time-out)
+    # env.shared_rooms only (env/shared.py), None otherwise
+    robot_collisions: jax.Array | None = None  # i32[robots] collisions with another robot (also in `collisions`)
 
 
 def _per_update(x: jax.Array, m: StepMetrics) -> jax.Array:
@@ -64,3 +66,8 @@ def loss_metrics(sums: StepMetrics, names) -> dict:
 
 
 NO_ROUND = {"clients": np.int32(0), "skipped": np.int32(0)}  # what a step without a round reports
+
+
+def optional_metrics(m: StepMetrics) -> dict:
+    """The episode metrics of the optional per-robot step fields that a run has (summed)."""
+    return {} if m.robot_collisions is None else {"robot_collisions": m.robot_collisions}

@@ -18,18 +18,16 @@ feed that robot's learner: an off-policy buffer receives N rows per step, a PPO 
 [T_roll, N]. With N = 1 and `learner: ddpg` this is the thesis's program, bit for bit.
 
 The step and episode counters enter as scan inputs that are *not* batched over seeds, so the
-"every T_train steps" gates are real `lax.cond`s (under vmap a cond on a batched predicate
-would compute the update every step). A hyperparameter that is batched (a sweep over periods)
-turns its gate into a select, which is correct but slower.
+"every T_train steps" gates are real `lax.cond`s (under vmap a cond on a batched predicate would
+compute the update every step; a batched period, swept, makes its gate a select: correct, slower).
 
 `TrainState` is one seed's state; `HParams` (fedjax_nav.training.hparams) holds every traced
 config value, env constants included (each leaf a scalar, or [S] when swept over seeds/grid
 points): the env's `EnvParams` are built from it inside the program, so a sweep over
 `env.v_max` compiles once.
 
-Per-step values (`StepMetrics`) are summed over the episode in the step scan's carry and turned
-into episode metrics by `EPISODE_METRICS`: adding a metric is one line in that table (and a field
-when it needs a new per-step value).
+Per-step values (`StepMetrics`) are summed in the step scan's carry, then made episode metrics
+(`EPISODE_METRICS`: one line per metric; training/step_metrics.py). Shared rooms: env/shared.py.
 """
 
 from __future__ import annotations
@@ -48,8 +46,9 @@ from fedjax_nav.agents import learners
 from fedjax_nav.agents.distributions import ACTION_HIGH, ACTION_LOW
 from fedjax_nav.agents.learners import Record
 from fedjax_nav.config import Config, envs, values
+from fedjax_nav.env import shared
 from fedjax_nav.env.nav import EnvParams
-from fedjax_nav.training import federation, slices
+from fedjax_nav.training import federation, slices, step_metrics
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config
 from fedjax_nav.training.metrics import Facts
 from fedjax_nav.training.probe import Probe
@@ -73,6 +72,7 @@ class Trainer:
     method: methods.Method
     learner: learners.Learner
     env: Any  # the NavEnv of the ideal robot (noise off: the thesis's program)
+    env_step: Any  # every environment's step: vmap(env.step), or a shared room's (env/shared.py)
     rooms: TrainRooms  # fixed playgrounds, or procedural rooms drawn in the program
     world: worlds.World  # the fixed rooms, one per environment
     nets: Any  # the learner's static networks and sizes (`Learner.make_nets`)
@@ -119,6 +119,7 @@ class Trainer:
             method=method,
             learner=learner,
             env=env,
+            env_step=shared.fleet_step(env, real, cfg.env.envs_per_robot) if rooms.shared else jax.vmap(env.step),
             rooms=rooms,
             world=rooms.world,
             nets=nets,
@@ -286,9 +287,7 @@ class Trainer:
             warm = self._split(k, self.envs_per_robot, draw)
             actions = jnp.where(g < hp.offpolicy.random_steps, warm, actions)
         env_keys = self._split(k_env, self.envs_per_robot)
-        obs2, env_state, reward, term, trunc, info = jax.vmap(self.env.step)(
-            env_keys, state.env_state, actions, env_params
-        )
+        obs2, env_state, reward, term, trunc, info = self.env_step(env_keys, state.env_state, actions, env_params)
         # s' is the true observation at the pose reached, also on a terminal step (obs2 is then
         # the start of the next attempt): `terminated` cuts the bootstrap there, `truncated` does not.
         rec = Record(state.obs, actions, reward, info["final_obs"], term, trunc, state.first, extra, state.memory)
@@ -327,6 +326,8 @@ class Trainer:
         if self.rooms.learnability:  # per environment, for its room's score: an attempt ends in a goal,
             # a collision (terminated) or the episode's time-out (truncated, the last step only)
             outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
+        if self.rooms.shared:  # robot i's collisions with the robots of its rooms (also in `collisions`)
+            outcome["robot_collisions"] = self._per_robot(info["robot_collision"].astype(jnp.int32))
         fed_now, fs = jnp.bool_(False), NO_ROUND
         if self.rounds and self.cfg.fed.period_unit == "steps":
             fed_now = (g + 1) % hp.fed.period == 0
@@ -370,7 +371,7 @@ class Trainer:
             state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
             fed_end = fed_now.astype(jnp.int32)
         metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
-        metrics |= loss_metrics(sums, self.learner.metrics)
+        metrics |= loss_metrics(sums, self.learner.metrics) | step_metrics.optional_metrics(sums)
         metrics["fed_events"] = metrics["fed_events"] + fed_end
         metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
         metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
@@ -428,8 +429,7 @@ class Trainer:
         if states is None or hp is None:
             raise ValueError("compiled_chunk(mesh=...) needs the states and hp templates")
         self.check_mesh(mesh, states.reward_steps.shape[0])
-        st = parallel.state_shardings(states, mesh)
-        rep = parallel.replicated(mesh)
+        st, rep = parallel.state_shardings(states, mesh), parallel.replicated(mesh)
         return jax.jit(
             fn, donate_argnums=0, in_shardings=(st, parallel.seed_shardings(hp, mesh), rep), out_shardings=(st, rep)
         )
@@ -438,9 +438,8 @@ class Trainer:
         """Raise `parallel.ShardingError` if this run cannot be placed on `mesh`."""
         from fedjax_nav.training import parallel
 
-        parallel.check_placement(
-            mesh, num_seeds, self.num_robots, self.method.shared_network, self.method.shared_buffer
-        )
+        m = self.method
+        parallel.check_placement(mesh, num_seeds, self.num_robots, m.shared_network, m.shared_buffer)
 
     def num_params(self) -> int:
         """Parameters of one agent's SHARED fields (DDPG: actor + critic), what one client sends
