@@ -69,6 +69,12 @@ SUITE_JSON = "suite.json"
 SUITE_FAMILIES = "suite_families.csv"
 SUITE_EPISODES = "suite_episodes.csv"
 SUITE_WORST_ROOMS_FIGURE = "worst_rooms.png"  # the worst rooms' episodes (fedjax_nav.evaluation.worst_rooms)
+# eval/<suite>-shared/: a suite with K robots per room (written by fedjax_nav.evaluation.shared_rooms)
+SHARED_SUFFIX = "-shared"
+SHARED_JSON = "shared.json"
+SHARED_FAMILIES = "shared_families.csv"
+SHARED_EPISODES = "shared_episodes.csv"
+SHARED_FIGURE = "shared_trajectories.png"  # the largest K's robots in the suite's first room
 
 # a sweep folder
 POINTS = "points"

@@ -7,11 +7,14 @@ tests/test_generate.py. A fleet of one in shared rooms is today's single-robot p
 (fixed and procedural rooms); bad settings are one line naming the field, exit 2.
 """
 
+import json
+import math
 import os
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from test_checkpoint import SEEDS, TINY, assert_same_run, run_cli, start_until_checkpoint, stop
@@ -238,3 +241,71 @@ def test_the_shared_room_benchmark_row_times_both_sides():
     assert row["robots_per_room"] == 2 and row["shared_steps_per_s"] > 0 and row["separate_steps_per_s"] > 0
     assert abs(row["cost_per_robot"] - row["separate_steps_per_s"] / row["shared_steps_per_s"]) < 1e-9
     assert "2 robots per room x 4 procedural mixture rooms" in format_rows([row])
+
+
+# ----------------------------------------------------------------------------- evaluation with K robots per room
+
+
+def test_a_deadlock_is_a_timed_out_robot_near_another_timed_out_one():
+    from fedjax_nav.evaluation.shared_rooms import DEADLOCK_DISTANCE, deadlocks
+
+    rng = np.random.default_rng(4)
+    final = rng.uniform(-1.5, 1.5, (30, 5, 3))
+    timeout = rng.random((30, 5)) < 0.6
+    got = deadlocks(final, timeout)
+    for r in range(30):
+        for i in range(5):
+            near = [
+                j
+                for j in range(5)
+                if j != i and timeout[r, j] and math.dist(final[r, i, :2], final[r, j, :2]) < DEADLOCK_DISTANCE
+            ]
+            assert got[r, i] == (bool(timeout[r, i]) and bool(near))
+    assert got.any() and not got.all()
+
+
+@pytest.fixture(scope="module")
+def untrained(tmp_path_factory):
+    """A run directory evaluate accepts: config.yaml and the initial params.npz of 2 robots, 1 seed."""
+    from fedjax_nav import rundir
+
+    run = tmp_path_factory.mktemp("shared_eval") / "run"
+    run.mkdir()
+    cfg = load_config(None, ["method=iddpg", "env.worlds=[train-0,train-0]", "offpolicy.hidden=16", "run.seeds=1"])
+    rundir.write_config(run, cfg)
+    rundir.write_params(run, Trainer(cfg).init_seeds(jnp.arange(1), hparams_from_config(cfg)).agents)
+    return run
+
+
+@pytest.mark.full
+def test_every_robot_episode_has_one_outcome_per_k_and_family(untrained, capfd):
+    argv = ["evaluate", str(untrained), "--suite", "mixture-50", "--robots-per-room", "1,3", "--max-steps", "48"]
+    assert cli.main(argv) == 0
+    out = untrained / "eval" / "mixture-50-shared"
+    ep = pd.read_csv(out / "shared_episodes.csv")
+    assert sorted(ep.robots_per_room.unique()) == [1, 3]
+    for k in (1, 3):
+        part = ep[ep.robots_per_room == k]
+        assert len(part) == 50 * 2 * k  # rooms x agents x robots
+    ends = ep[["success", "collision", "robot_collision", "timeout"]].sum(axis=1)
+    assert (ends == 1).all()  # one outcome each, as the single-robot evaluation
+    one = ep[ep.robots_per_room == 1]
+    assert one.robot_collision.sum() == 0 and one.deadlock.sum() == 0
+    assert (ep.deadlock <= ep.timeout).all()
+    fams = pd.read_csv(out / "shared_families.csv")
+    assert list(fams.family) == ["mixture", "all", "mixture", "all"]
+    summary = json.loads((out / "shared.json").read_text())
+    assert summary["robots_per_room"] == [1, 3] and summary["rooms"] == 50
+    assert (out / "shared_trajectories.png").stat().st_size > 10_000
+    assert "3 robot(s) per room: success" in capfd.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "flags, field",
+    [(["--robots-per-room", "2"], "--suite"), (["--suite", "mixture-50", "--robots-per-room", "1,17"], "[1, 16]")],
+    ids=["no-suite", "too-many"],
+)
+def test_bad_robots_per_room_are_one_line(untrained, capfd, flags, field):
+    assert cli.main(["evaluate", str(untrained), *flags]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--robots-per-room" in err[0] and field in err[0], err

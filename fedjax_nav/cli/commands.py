@@ -117,6 +117,14 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
         memory_budget=budget,
     )
     try:
+        if getattr(args, "robots_per_room", None):  # K robots per room (docs/shared_rooms.md)
+            if not getattr(args, "suite", None):
+                raise UserError("--robots-per-room: give the rooms with --suite (e.g. --suite heldout)")
+            from fedjax_nav.evaluation.shared_rooms import evaluate_shared_runs
+
+            kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps")}
+            evaluate_shared_runs(args.run_dirs, args.suite, args.robots_per_room, figures=not args.no_figures, **kw)
+            return 0
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
             from fedjax_nav.evaluation.suite import evaluate_suite_runs
 

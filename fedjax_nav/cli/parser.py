@@ -41,6 +41,12 @@ SEED_RANGE = (-(2**63), 2**63 - 1)
 MAX_RENDER_STEPS = 100_000
 
 
+def robots_per_room(text: str) -> tuple[int, ...]:
+    """An argparse type: comma-separated integers >= 1 (`evaluate --robots-per-room`; the largest K
+    allowed is evaluation.shared_rooms.MAX_ROBOTS, checked there)."""
+    return tuple(positive_int(part.strip()) for part in text.split(","))
+
+
 def bounded_int(lo: int, hi: int, what: str = "an integer"):
     """An argparse type: an integer in [lo, hi] (the error names the range)."""
 
@@ -243,6 +249,15 @@ def add_evaluate(sub) -> None:
         "per family x 4 goals), or on every world file of a folder or a quoted glob ('maps/*.yaml'; each "
         "file a family, named by its stem); results per family with 95%% bootstrap CIs and the tail (worst "
         "10%% of rooms, collision and time-out rates, path-length ratio) in RUN/eval/<NAME or folder name>/",
+    )
+    p.add_argument(
+        "--robots-per-room",
+        default=None,
+        metavar="K[,K...]",
+        type=robots_per_room,
+        help="with --suite: every agent drives K copies of itself together in each room, for each K (e.g. 1,2,4,8): "
+        "success, obstacle and robot-robot collisions, time-outs, deadlocks per K and family in "
+        "RUN/eval/<suite>-shared/ (docs/shared_rooms.md)",
     )
     p.add_argument(
         "--memory-budget",

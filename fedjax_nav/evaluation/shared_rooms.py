@@ -1,0 +1,278 @@
+"""A run's agents with K robots per room (`fedjax-nav evaluate RUN --suite NAME --robots-per-room
+1,2,4,8`; docs/shared_rooms.md, "Evaluation").
+
+Every agent of the run drives a fleet of K copies of itself in every room of the suite: the K
+robots are placed together (`env.shared.place_fleet`: robot 0 at the room's own start 0 and goal
+0, the others drawn apart), each drives to its own goal with the greedy actor under the
+evaluation's noise (`rollout.py`'s protocol), and sees the others in its lidar. A robot's episode
+ends at its goal (success), at a collision with an obstacle or with another robot, or at the
+time-out T; a robot whose episode ended leaves the room (the others no longer see it). A
+deadlock: a robot timed out within DEADLOCK_DISTANCE of another timed-out robot.
+
+Results per K and family (shared_families.csv): the success with its 95 % bootstrap interval
+over rooms, the worst 10 % of rooms, and the shares of robot-episodes ending in an obstacle
+collision, a robot-robot collision, a time-out, a deadlock. Written to
+RUN/eval/<suite folder>-shared/ through fedjax_nav.rundir; a figure of the K robots' trajectories
+in the suite's first room for the largest K.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from fedjax_nav import rundir
+from fedjax_nav.config import envs
+from fedjax_nav.env.nav import NavEnv, make_params
+from fedjax_nav.env.shared import fleet_others, place_fleet
+from fedjax_nav.evaluation.limits import EvalError
+from fedjax_nav.evaluation.policies import as_memory_policy
+from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
+from fedjax_nav.evaluation.runs import greedy_policy, load_run
+from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
+from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
+
+DEADLOCK_DISTANCE = 1.0  # m between two timed-out robots' centres (two discs of 0.25 m and a robot's length)
+MAX_ROBOTS = 16  # robots per room (placement candidates are shared by 2 K points)
+ROBOT_DISC = 0.25  # m, a start's disc in the figure (D_c)
+OUTCOMES = ("success", "collision", "robot_collision", "timeout", "deadlock")
+
+
+@functools.lru_cache(maxsize=8)
+def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False):
+    """(one agent's actor params, one room's EnvParams, key) -> per robot [k]: success,
+    collision (an obstacle), robot_collision, timeout, steps, final poses [k, 3] (and with
+    `trajectories` the poses [T + 1, k, 3])."""
+    env = NavEnv(**dict(settings))
+    pol = as_memory_policy(policy)
+    T = env.episode_length
+
+    def run(actor, room, key):
+        k_place, k_reset, k_steps = jax.random.split(key, 3)
+        fleet = place_fleet(room.world, k_place, k, keep_first=True)
+        params = jax.vmap(lambda w: room.replace(world=w))(fleet)
+        obs, states = jax.vmap(env.reset)(jax.random.split(k_reset, k), params)
+        memory = jax.tree.map(lambda x: jnp.broadcast_to(x, (k, *x.shape)), pol.init())
+        false = jnp.zeros(k, bool)
+        flags = {name: false for name in ("done", "success", "collision", "robot_collision", "timeout")}
+        carry = (states, obs, memory, jnp.ones(k, bool), flags, jnp.zeros(k, jnp.int32))
+
+        def body(carry, key_t):
+            states, obs, memory, first, f, steps = carry
+            act, memory = jax.vmap(pol.step, in_axes=(None, 0, 0, 0))(actor, obs, memory, first)
+            ks = jax.random.split(key_t, k)
+            moved = jax.vmap(env.move)(ks, states, act, params)
+            around = fleet_others(moved.pose, jax.vmap(env.radius)(params), ~f["done"], 1)
+            obs2, states2, _, term, trunc, info = jax.vmap(env.settle)(ks, states, moved, params, around)
+            live = ~f["done"]
+            robot = info["robot_collision"]
+            f = {
+                "done": f["done"] | term | trunc,
+                "success": f["success"] | (live & info["goal"] & ~info["collision"]),  # as rollout.py
+                "collision": f["collision"] | (live & info["collision"] & ~robot),
+                "robot_collision": f["robot_collision"] | (live & robot),
+                "timeout": f["timeout"] | (live & trunc),
+            }
+            keep = lambda new, old: jnp.where(live.reshape(-1, *[1] * (new.ndim - 1)), new, old)  # noqa: E731
+            states, obs = jax.tree.map(keep, states2, states), keep(obs2, obs)
+            return (states, obs, memory, false, f, steps + live.astype(jnp.int32)), states.pose
+
+        start = states.pose
+        (states, _, _, _, f, steps), poses = jax.lax.scan(body, carry, jax.random.split(k_steps, T))
+        out = {name: f[name] for name in ("success", "collision", "robot_collision", "timeout")}
+        out |= {"steps": steps, "final": states.pose}
+        if trajectories:
+            out["poses"] = jnp.concatenate([start[None], poses])  # [T + 1, k, 3]
+        return out
+
+    return jax.jit(jax.vmap(jax.vmap(run, (0, None, 0)), (None, 0, 0)))  # [rooms, agents, k]
+
+
+def deadlocks(final: np.ndarray, timeout: np.ndarray, distance: float = DEADLOCK_DISTANCE) -> np.ndarray:
+    """bool[..., k]: a robot timed out within `distance` of another timed-out robot of its room
+    (final poses [..., k, 3], timeout bool[..., k])."""
+    xy = np.asarray(final, np.float64)[..., :2]
+    d = np.linalg.norm(xy[..., :, None, :] - xy[..., None, :, :], axis=-1)
+    k = xy.shape[-2]
+    both = timeout[..., :, None] & timeout[..., None, :] & ~np.eye(k, dtype=bool)
+    return (both & (d < distance)).any(axis=-1)
+
+
+def evaluate_shared(
+    run_dir,
+    suite: str = "heldout",
+    robots_per_room=(1, 2, 4, 8),
+    range_noise: float = RANGE_NOISE,
+    action_noise: float = ACTION_NOISE,
+    seed: int = 0,
+    max_steps: int | None = None,
+) -> dict:
+    """The run's agents on every room of `suite` with K robots per room for each K; returns
+    {"summary", "families", "episodes"} (the episodes: one row per room x agent x K x robot)."""
+    ks = sorted({int(k) for k in robots_per_room})
+    if not ks or ks[0] < 1 or ks[-1] > MAX_ROBOTS:
+        raise EvalError(f"--robots-per-room: each K must be in [1, {MAX_ROBOTS}], got {list(robots_per_room)}")
+    run = load_run(run_dir)
+    cfg = run.cfg
+    world, families, room_seeds = suite_world(suite)
+    T = int(max_steps or cfg.env.episode_length)
+    values = envs.eval_values(cfg, range_noise, action_noise)
+    settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
+    rooms = make_params(world, **values)
+    R, A = int(world.goals.shape[0]), run.num_agents
+    frames, t0 = [], time.time()
+    for k in ks:
+        keys = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)
+        out = jax.device_get(fleet_program(settings, greedy_policy(cfg), k)(run.actor_params, rooms, keys))
+        out["deadlock"] = deadlocks(out["final"], out["timeout"])
+        r, a, i = np.meshgrid(np.arange(R), np.arange(A), np.arange(k), indexing="ij")
+        frame = {
+            "robots_per_room": k,
+            "room": r.ravel(),
+            "family": np.asarray(families)[r.ravel()],
+            "room_seed": np.asarray(room_seeds)[r.ravel()],
+            "seed": run.agent_seed[a.ravel()],
+            "net": run.agent_net[a.ravel()],
+            "robot": i.ravel(),
+            "steps": out["steps"].ravel(),
+        }
+        frames.append(pd.DataFrame(frame | {name: out[name].ravel().astype(int) for name in OUTCOMES}))
+    ep = pd.concat(frames, ignore_index=True)
+    fams = pd.DataFrame(
+        [
+            shared_row(k, name, part)
+            for k in ks
+            for name, part in [
+                *((f, ep[(ep.robots_per_room == k) & (ep.family == f)]) for f in dict.fromkeys(families)),
+                ("all", ep[ep.robots_per_room == k]),
+            ]
+        ]
+    )
+    summary = {
+        "run_dir": str(run.run_dir),
+        "method": cfg.method,
+        "suite": suite,
+        "robots_per_room": ks,
+        "rooms": R,
+        "agents": A,
+        "max_steps": T,
+        "eval_seed": int(seed),
+        "trained_in_shared_rooms": bool(cfg.env.shared_rooms),
+        "noise": {"range_noise": float(values["range_noise"]), "action_noise": float(action_noise)},
+        "deadlock_distance": DEADLOCK_DISTANCE,
+        "families": fams.to_dict(orient="records"),
+        "wall_s": time.time() - t0,
+    }
+    return {"summary": summary, "families": fams, "episodes": ep}
+
+
+def shared_row(k: int, name: str, ep: pd.DataFrame) -> dict:
+    """One K and family: success with its interval over rooms and its worst 10 % of rooms, and the
+    shares of robot-episodes by outcome."""
+    per_room = ep.groupby("room")["success"].mean().to_numpy()
+    lo, hi = bootstrap_ci(per_room)
+    return {
+        "robots_per_room": k,
+        "family": name,
+        "rooms": int(len(per_room)),
+        "robot_episodes": int(len(ep)),
+        "success": float(ep["success"].mean()),
+        "ci_rooms_low": lo,
+        "ci_rooms_high": hi,
+        "worst10": float(worst_mean(per_room)) if len(per_room) else float("nan"),
+        **{name_: float(ep[name_].mean()) for name_ in OUTCOMES[1:]},
+    }
+
+
+def write_shared(result: dict, out: str | Path) -> list[Path]:
+    """shared_episodes.csv, shared_families.csv, then shared.json (the marker of a complete one)."""
+    from fedjax_nav.evaluation.report import json_safe
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / rundir.SHARED_EPISODES, out / rundir.SHARED_FAMILIES, out / rundir.SHARED_JSON]
+    rundir.atomic_write(paths[0], lambda p: result["episodes"].to_csv(p, index=False))
+    rundir.atomic_write(paths[1], lambda p: result["families"].to_csv(p, index=False))
+    rundir.write_json(paths[2], json_safe(result["summary"]))
+    return paths
+
+
+def shared_dir(run_dir, suite: str) -> Path:
+    """RUN/eval/<suite folder>-shared/."""
+    return rundir.eval_dir(run_dir, f"{suite_folder(suite)}{rundir.SHARED_SUFFIX}")
+
+
+def evaluate_shared_runs(run_dirs, suite: str, robots_per_room, echo=print, figures: bool = True, **kw) -> list[dict]:
+    """`evaluate_shared` of every run, written to RUN/eval/<suite folder>-shared/, a line per K."""
+    done = []
+    for run_dir in run_dirs:
+        result = evaluate_shared(run_dir, suite, robots_per_room, **kw)
+        out = shared_dir(run_dir, suite)
+        write_shared(result, out)
+        for row in result["families"].to_dict(orient="records"):
+            if row["family"] == "all":
+                echo(
+                    f"{run_dir}: {row['robots_per_room']} robot(s) per room: success {row['success']:.3f} "
+                    f"[{row['ci_rooms_low']:.3f}, {row['ci_rooms_high']:.3f}], worst10 {row['worst10']:.3f}, "
+                    f"obstacle {row['collision']:.3f}, robot-robot {row['robot_collision']:.3f}, "
+                    f"time-out {row['timeout']:.3f}, deadlock {row['deadlock']:.3f}"
+                )
+        if figures:
+            shared_figure(run_dir, suite, max(result["summary"]["robots_per_room"]), out, **kw)
+        echo(f"wrote {out}/ ({json.dumps(result['summary']['robots_per_room'])} robots per room)")
+        done.append(result["summary"])
+    return done
+
+
+def shared_figure(
+    run_dir,
+    suite: str,
+    k: int,
+    out: str | Path,
+    range_noise: float = RANGE_NOISE,
+    action_noise: float = ACTION_NOISE,
+    seed: int = 0,
+    max_steps: int | None = None,
+) -> Path:
+    """The first agent's fleet of `k` robots in the suite's first room: each robot's path from its
+    start (a disc) to where its episode ended (a star at its goal, a cross at a collision), its
+    goal a ring of its colour; the protocol of `evaluate_shared` (that room's key for K = k)."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
+
+    from fedjax_nav.env.render import draw_trajectories, draw_world
+
+    run = load_run(run_dir)
+    cfg = run.cfg
+    world, families, _ = suite_world(suite)
+    T = int(max_steps or cfg.env.episode_length)
+    values = envs.eval_values(cfg, range_noise, action_noise)
+    settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
+    room = jax.tree.map(lambda x: x[:1], make_params(world, **values))
+    R, A = int(world.goals.shape[0]), run.num_agents
+    key = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)[:1, :1]
+    actor = jax.tree.map(lambda x: x[:1], run.actor_params)
+    out_ = jax.device_get(fleet_program(settings, greedy_policy(cfg), k, trajectories=True)(actor, room, key))
+    fleet = jax.device_get(place_fleet(jax.tree.map(lambda x: x[0], world), jax.random.split(key[0, 0], 3)[0], k, True))
+    poses, steps = out_["poses"][0, 0], out_["steps"][0, 0]  # [T + 1, k, 3], [k]
+    fig = Figure(figsize=(5.5, 5.5), layout="constrained")
+    ax = fig.add_subplot()
+    own = jax.tree.map(lambda x: x[0], fleet)  # robot 0's row: the room with only its start and goal drawn
+    draw_world(ax, own, title=f"{families[0]} room, {k} robots (discs: starts; rings: goals)", labels=False)
+    colors = [f"C{i % 10}" for i in range(k)]
+    crashed = out_["collision"][0, 0] | out_["robot_collision"][0, 0]
+    ends = ["success" if out_["success"][0, 0, i] else "collision" if crashed[i] else None for i in range(k)]
+    draw_trajectories(ax, [poses[: steps[i] + 1, i, :2] for i in range(k)], colors=colors, outcomes=ends)
+    for i in range(k):
+        ax.add_patch(Circle(tuple(poses[0, i, :2]), ROBOT_DISC, color=colors[i], zorder=5))
+        gx, gy = fleet.goals[i, 0]
+        ax.add_patch(Circle((gx, gy), float(values["goal_radius"]), fill=False, ec=colors[i], lw=1.2))
+    path = Path(out) / rundir.SHARED_FIGURE
+    return rundir.save_figure(fig, path, 110)
