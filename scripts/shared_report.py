@@ -1,0 +1,109 @@
+"""The shared-rooms experiment's table (docs/shared_rooms.md, "The experiment"): every trained point
+of a sweep folder evaluated with K robots per room on a held-out suite (`evaluate --robots-per-room`,
+kept in each point's eval/<suite>-shared/ and reused), then one row per (method, trained in shared
+rooms or alone, K): success with its 95% bootstrap interval over training seeds, the worst 10% of
+rooms, and the shares of robot-episodes ending in an obstacle collision, a robot-robot collision, a
+time-out, a deadlock.
+
+    python scripts/shared_report.py runs/sweeps/shared_1e7                       # mixture-50, K = 1, 2, 4, 8
+    python scripts/shared_report.py runs/sweeps/shared_1e7 --csv results/shared_1e7.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from fedjax_nav import rundir
+from fedjax_nav.evaluation.shared_rooms import evaluate_shared, shared_dir, write_shared
+from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
+
+METHODS = {"flddpg": "federated", "iddpg": "independent", "snddpg": "central"}
+
+
+def episodes(point: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
+    """The point's shared-room episodes on `suite` for `ks`: the kept ones when they hold these Ks."""
+    out = shared_dir(point, suite)
+    kept = out / rundir.SHARED_JSON
+    if not (kept.exists() and json.loads(kept.read_text())["robots_per_room"] == ks):
+        write_shared(evaluate_shared(point, suite, ks, max_steps=max_steps), out)
+    return pd.read_csv(out / rundir.SHARED_EPISODES)
+
+
+def rows(folder: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
+    table = []
+    for point in sorted(rundir.points_dir(folder).iterdir()):
+        if not (point / rundir.PARAMS).exists():
+            print(f"{point.name}: not trained yet, left out", file=sys.stderr)
+            continue
+        cfg = rundir.read_config(point)
+        metrics = pd.read_csv(point / rundir.METRICS)
+        last = metrics[metrics.episode >= metrics.episode.max() - 4]  # training's last 5 episodes
+        ep = episodes(point, suite, ks, max_steps)
+        for k, part in ep.groupby("robots_per_room"):
+            per_seed = part.groupby("seed")["success"].mean().to_numpy()
+            per_room = part.groupby("room")["success"].mean().to_numpy()
+            lo, hi = bootstrap_ci(per_seed)
+            table.append(
+                {
+                    "method": METHODS.get(cfg.method, cfg.method),
+                    "trained": "shared rooms" if cfg.env.shared_rooms else "alone",
+                    "robots_per_room": int(k),
+                    "seeds": len(per_seed),
+                    "success": float(part["success"].mean()),
+                    "ci_seeds_low": lo,
+                    "ci_seeds_high": hi,
+                    "worst_seed": float(per_seed.min()),
+                    "worst10_rooms": float(worst_mean(per_room)),
+                    **{o: float(part[o].mean()) for o in ("collision", "robot_collision", "timeout", "deadlock")},
+                    "train_goal_share": float(last["reached_goal"].mean()),
+                    "train_robot_collisions": float(last["robot_collisions"].mean())
+                    if "robot_collisions" in last
+                    else np.nan,
+                    "agent_steps": int(
+                        cfg.run.episodes * cfg.env.episode_length * cfg.env.envs_per_robot * cfg.num_robots
+                    ),
+                    "point": point.name,
+                }
+            )
+    return pd.DataFrame(table).sort_values(["robots_per_room", "method", "trained"]).reset_index(drop=True)
+
+
+def markdown(df: pd.DataFrame) -> str:
+    lines = [
+        "| K robots per room | method | trained | success [95% CI over seeds] | worst seed | worst 10% rooms | "
+        "obstacle | robot-robot | time-out | deadlock |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in df.to_dict(orient="records"):
+        lines.append(
+            f"| {r['robots_per_room']} | {r['method']} | {r['trained']} | {r['success']:.3f} "
+            f"[{r['ci_seeds_low']:.3f}, {r['ci_seeds_high']:.3f}] | {r['worst_seed']:.3f} | {r['worst10_rooms']:.3f} | "
+            f"{r['collision']:.3f} | {r['robot_collision']:.3f} | {r['timeout']:.3f} | {r['deadlock']:.3f} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folder", type=Path)
+    ap.add_argument("--suite", default="mixture-50")
+    ap.add_argument("--robots-per-room", default="1,2,4,8")
+    ap.add_argument("--max-steps", type=int, default=None)
+    ap.add_argument("--csv", default=None, help="write the table here too (e.g. results/shared_1e7.csv)")
+    a = ap.parse_args()
+    ks = sorted({int(k) for k in a.robots_per_room.split(",")})
+    df = rows(a.folder, a.suite, ks, a.max_steps)
+    if a.csv:
+        rundir.atomic_write(Path(a.csv), lambda p: df.to_csv(p, index=False))
+    print(markdown(df))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
