@@ -302,10 +302,27 @@ def test_every_robot_episode_has_one_outcome_per_k_and_family(untrained, capfd):
 
 @pytest.mark.parametrize(
     "flags, field",
-    [(["--robots-per-room", "2"], "--suite"), (["--suite", "mixture-50", "--robots-per-room", "1,17"], "[1, 16]")],
-    ids=["no-suite", "too-many"],
+    [
+        (["--robots-per-room", "2"], "eval-crossing"),
+        (["--suite", "mixture-50", "--robots-per-room", "1,17"], "[1, 16]"),
+    ],
+    ids=["one-start-world", "too-many"],
 )
 def test_bad_robots_per_room_are_one_line(untrained, capfd, flags, field):
     assert cli.main(["evaluate", str(untrained), *flags]) == 2
     err = capfd.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--robots-per-room" in err[0] and field in err[0], err
+
+
+@pytest.mark.full
+def test_the_arena_crossing_drives_robot_i_from_start_i_to_goal_i(untrained, capfd):
+    argv = ["evaluate", str(untrained), "--world", "eval-crossing", "--robots-per-room", "4", "--attempts", "2"]
+    assert cli.main(argv + ["--max-steps", "32", "--no-figures"]) == 0
+    out = untrained / "eval" / "eval-crossing-shared"
+    ep = pd.read_csv(out / "shared_episodes.csv")
+    assert len(ep) == 2 * 2 * 4 and set(ep.family) == {"eval-crossing"}  # attempts x agents x robots
+    assert (ep[["success", "collision", "robot_collision", "timeout"]].sum(axis=1) == 1).all()
+    w = worlds.load("eval-crossing")
+    starts, goals = np.asarray(w.starts)[:, :2], np.asarray(w.goals)
+    np.testing.assert_allclose(goals, -0.84 * starts)  # each robot towards the opposite corner: the paths cross
+    assert json.loads((out / "shared.json").read_text())["world"] == "eval-crossing"

@@ -81,6 +81,7 @@ def test_shipped_worlds_match_the_scenario():
         "train-4": (10, 4),
         "train-5": (10, 4),
         "eval": (12, 1),
+        "eval-crossing": (12, 4),  # the arena for a fleet of four (docs/shared_rooms.md)
     }
     assert set(expected) == set(worlds.SHIPPED)
     for name, (side, n_starts) in expected.items():

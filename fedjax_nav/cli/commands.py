@@ -118,11 +118,11 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
     )
     try:
         if getattr(args, "robots_per_room", None):  # K robots per room (docs/shared_rooms.md)
-            if not getattr(args, "suite", None):
-                raise UserError("--robots-per-room: give the rooms with --suite (e.g. --suite heldout)")
             from fedjax_nav.evaluation.shared_rooms import evaluate_shared_runs
 
-            kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps")}
+            kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps", "attempts")}
+            if not getattr(args, "suite", None):  # a world's own starts and goals, robot i: start i -> goal i
+                kw["world"] = args.world
             evaluate_shared_runs(args.run_dirs, args.suite, args.robots_per_room, figures=not args.no_figures, **kw)
             return 0
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)

@@ -255,9 +255,10 @@ def add_evaluate(sub) -> None:
         default=None,
         metavar="K[,K...]",
         type=robots_per_room,
-        help="with --suite: every agent drives K copies of itself together in each room, for each K (e.g. 1,2,4,8): "
-        "success, obstacle and robot-robot collisions, time-outs, deadlocks per K and family in "
-        "RUN/eval/<suite>-shared/ (docs/shared_rooms.md)",
+        help="every agent drives K copies of itself together in each room of --suite (placed apart), or in "
+        "--world from its start i to its goal i (--attempts times; e.g. --world eval-crossing "
+        "--robots-per-room 4), for each K (e.g. 1,2,4,8): success, obstacle and robot-robot collisions, "
+        "time-outs, deadlocks per K and family in RUN/eval/<suite or world>-shared/ (docs/shared_rooms.md)",
     )
     p.add_argument(
         "--memory-budget",

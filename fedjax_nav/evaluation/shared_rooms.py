@@ -29,9 +29,10 @@ import numpy as np
 import pandas as pd
 
 from fedjax_nav import rundir
+from fedjax_nav import worlds as _worlds
 from fedjax_nav.config import envs
 from fedjax_nav.env.nav import NavEnv, make_params
-from fedjax_nav.env.shared import fleet_others, place_fleet
+from fedjax_nav.env.shared import fixed_fleet, fleet_others, place_fleet
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.evaluation.policies import as_memory_policy
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
@@ -46,8 +47,9 @@ OUTCOMES = ("success", "collision", "robot_collision", "timeout", "deadlock")
 
 
 @functools.lru_cache(maxsize=8)
-def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False):
-    """(one agent's actor params, one room's EnvParams, key) -> per robot [k]: success,
+def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False, fixed: bool = False):
+    """(one agent's actor params, one room's EnvParams, key) -> per robot [k] (`fixed`: robot i
+    from the room's start i to its goal i, else `place_fleet`): success,
     collision (an obstacle), robot_collision, timeout, steps, final poses [k, 3] (and with
     `trajectories` the poses [T + 1, k, 3])."""
     env = NavEnv(**dict(settings))
@@ -56,7 +58,7 @@ def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False):
 
     def run(actor, room, key):
         k_place, k_reset, k_steps = jax.random.split(key, 3)
-        fleet = place_fleet(room.world, k_place, k, keep_first=True)
+        fleet = fixed_fleet(room.world, k) if fixed else place_fleet(room.world, k_place, k, keep_first=True)
         params = jax.vmap(lambda w: room.replace(world=w))(fleet)
         obs, states = jax.vmap(env.reset)(jax.random.split(k_reset, k), params)
         memory = jax.tree.map(lambda x: jnp.broadcast_to(x, (k, *x.shape)), pol.init())
@@ -105,23 +107,48 @@ def deadlocks(final: np.ndarray, timeout: np.ndarray, distance: float = DEADLOCK
     return (both & (d < distance)).any(axis=-1)
 
 
+def rooms_of(suite: str | None, world: str | None, attempts: int, ks) -> tuple:
+    """(stacked World [rooms], families, room seeds, fixed): the rooms of `suite`, or `world`
+    repeated `attempts` times with its own starts and goals (robot i: start i, goal i; a world
+    with fewer than the largest K of either is refused in one line)."""
+    ks = sorted({int(k) for k in ks})
+    if not ks or ks[0] < 1 or ks[-1] > MAX_ROBOTS:
+        raise EvalError(f"--robots-per-room: each K must be in [1, {MAX_ROBOTS}], got {list(ks)}")
+    if world is None:
+        return (*suite_world(suite), False)
+    try:
+        w = _worlds.load(world)
+    except _worlds.WorldError as e:
+        raise EvalError(str(e)) from None
+    starts, goals = int(w.num_starts), int(w.num_goals)
+    if min(starts, goals) < ks[-1]:
+        raise EvalError(
+            f"--robots-per-room: world '{world}' has {starts} start(s) and {goals} goal(s) for {ks[-1]} robots "
+            "(robot i drives from start i to goal i; eval-crossing has 4 of each, or use --suite)"
+        )
+    stacked = jax.tree.map(lambda x: jnp.repeat(jnp.asarray(x)[None], attempts, axis=0), w)
+    return stacked, np.array([rundir.world_slug(world)] * attempts), np.full(attempts, -1), True
+
+
 def evaluate_shared(
     run_dir,
-    suite: str = "heldout",
+    suite: str | None = "heldout",
     robots_per_room=(1, 2, 4, 8),
     range_noise: float = RANGE_NOISE,
     action_noise: float = ACTION_NOISE,
     seed: int = 0,
     max_steps: int | None = None,
+    world: str | None = None,
+    attempts: int = 4,
 ) -> dict:
-    """The run's agents on every room of `suite` with K robots per room for each K; returns
-    {"summary", "families", "episodes"} (the episodes: one row per room x agent x K x robot)."""
+    """The run's agents on every room of `suite` (or `world`, `attempts` times: `rooms_of`) with K
+    robots per room for each K; returns {"summary", "families", "episodes"} (the episodes: one row
+    per room x agent x K x robot)."""
+    world_name = world
+    world, families, room_seeds, fixed = rooms_of(suite, world, attempts, robots_per_room)
     ks = sorted({int(k) for k in robots_per_room})
-    if not ks or ks[0] < 1 or ks[-1] > MAX_ROBOTS:
-        raise EvalError(f"--robots-per-room: each K must be in [1, {MAX_ROBOTS}], got {list(robots_per_room)}")
     run = load_run(run_dir)
     cfg = run.cfg
-    world, families, room_seeds = suite_world(suite)
     T = int(max_steps or cfg.env.episode_length)
     values = envs.eval_values(cfg, range_noise, action_noise)
     settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
@@ -130,7 +157,8 @@ def evaluate_shared(
     frames, t0 = [], time.time()
     for k in ks:
         keys = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)
-        out = jax.device_get(fleet_program(settings, greedy_policy(cfg), k)(run.actor_params, rooms, keys))
+        program = fleet_program(settings, greedy_policy(cfg), k, fixed=fixed)
+        out = jax.device_get(program(run.actor_params, rooms, keys))
         out["deadlock"] = deadlocks(out["final"], out["timeout"])
         r, a, i = np.meshgrid(np.arange(R), np.arange(A), np.arange(k), indexing="ij")
         frame = {
@@ -158,7 +186,8 @@ def evaluate_shared(
     summary = {
         "run_dir": str(run.run_dir),
         "method": cfg.method,
-        "suite": suite,
+        "suite": None if fixed else suite,
+        "world": world_name,
         "robots_per_room": ks,
         "rooms": R,
         "agents": A,
@@ -204,17 +233,18 @@ def write_shared(result: dict, out: str | Path) -> list[Path]:
     return paths
 
 
-def shared_dir(run_dir, suite: str) -> Path:
-    """RUN/eval/<suite folder>-shared/."""
-    return rundir.eval_dir(run_dir, f"{suite_folder(suite)}{rundir.SHARED_SUFFIX}")
+def shared_dir(run_dir, suite: str | None, world: str | None = None) -> Path:
+    """RUN/eval/<suite folder or world>-shared/."""
+    name = rundir.world_slug(world) if world is not None else suite_folder(suite)
+    return rundir.eval_dir(run_dir, f"{name}{rundir.SHARED_SUFFIX}")
 
 
-def evaluate_shared_runs(run_dirs, suite: str, robots_per_room, echo=print, figures: bool = True, **kw) -> list[dict]:
-    """`evaluate_shared` of every run, written to RUN/eval/<suite folder>-shared/, a line per K."""
+def evaluate_shared_runs(run_dirs, suite: str | None, robots_per_room, echo=print, figures: bool = True, **kw):
+    """`evaluate_shared` of every run, written to RUN/eval/<suite or world>-shared/, a line per K."""
     done = []
     for run_dir in run_dirs:
         result = evaluate_shared(run_dir, suite, robots_per_room, **kw)
-        out = shared_dir(run_dir, suite)
+        out = shared_dir(run_dir, suite, kw.get("world"))
         write_shared(result, out)
         for row in result["families"].to_dict(orient="records"):
             if row["family"] == "all":
@@ -233,13 +263,15 @@ def evaluate_shared_runs(run_dirs, suite: str, robots_per_room, echo=print, figu
 
 def shared_figure(
     run_dir,
-    suite: str,
+    suite: str | None,
     k: int,
     out: str | Path,
     range_noise: float = RANGE_NOISE,
     action_noise: float = ACTION_NOISE,
     seed: int = 0,
     max_steps: int | None = None,
+    world: str | None = None,
+    attempts: int = 4,
 ) -> Path:
     """The first agent's fleet of `k` robots in the suite's first room: each robot's path from its
     start (a disc) to where its episode ended (a star at its goal, a cross at a collision), its
@@ -251,7 +283,7 @@ def shared_figure(
 
     run = load_run(run_dir)
     cfg = run.cfg
-    world, families, _ = suite_world(suite)
+    world, families, _, fixed = rooms_of(suite, world, attempts, [k])
     T = int(max_steps or cfg.env.episode_length)
     values = envs.eval_values(cfg, range_noise, action_noise)
     settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
@@ -259,8 +291,10 @@ def shared_figure(
     R, A = int(world.goals.shape[0]), run.num_agents
     key = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)[:1, :1]
     actor = jax.tree.map(lambda x: x[:1], run.actor_params)
-    out_ = jax.device_get(fleet_program(settings, greedy_policy(cfg), k, trajectories=True)(actor, room, key))
-    fleet = jax.device_get(place_fleet(jax.tree.map(lambda x: x[0], world), jax.random.split(key[0, 0], 3)[0], k, True))
+    out_ = jax.device_get(fleet_program(settings, greedy_policy(cfg), k, True, fixed)(actor, room, key))
+    first = jax.tree.map(lambda x: x[0], world)
+    fleet = fixed_fleet(first, k) if fixed else place_fleet(first, jax.random.split(key[0, 0], 3)[0], k, True)
+    fleet = jax.device_get(fleet)
     poses, steps = out_["poses"][0, 0], out_["steps"][0, 0]  # [T + 1, k, 3], [k]
     fig = Figure(figsize=(5.5, 5.5), layout="constrained")
     ax = fig.add_subplot()

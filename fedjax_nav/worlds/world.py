@@ -30,7 +30,7 @@ from fedjax_nav.messages import shorten, show
 from fedjax_nav.worlds import input_files, rosmap
 from fedjax_nav.worlds.grid import MapError
 
-SHIPPED = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5", "eval")
+SHIPPED = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5", "eval", "eval-crossing")
 THESIS_TRAIN = ("train-0", "train-2", "train-3", "train-4", "train-5")  # thesis dropped room 1
 PAPER_TRAIN = ("train-0", "train-1", "train-2", "train-3", "train-4", "train-5")
 # Starts and goals must keep this clearance from every obstacle (the collision distance D_c).
