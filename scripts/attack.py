@@ -32,7 +32,8 @@ than the one-line ConfigError / WorldError, or on accepting a value outside the 
 
 Training cases use the tiny settings (`TINY`: 3 episodes x 64 steps) and share the persistent
 compilation cache (JAX_COMPILATION_CACHE_DIR, default ~/.cache/fedjax_nav_jax), so each is seconds.
-Per-case records go to OUT/cases.jsonl; the summary to --csv (default results/attack_summary.csv).
+Per-case records go to OUT/cases.jsonl; the summary to --csv (default results/attack_summary.csv for the whole
+battery, OUT/summary.csv for a part of it).
 """
 
 from __future__ import annotations
@@ -1399,8 +1400,16 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="command lines run at once (category cli)")
     ap.add_argument("--mem", default="4G", help="address-space cap of every subprocess (RLIMIT_AS), e.g. 4G")
     ap.add_argument("--timeout-scale", type=float, default=1.0, help="multiply every timeout (a slow machine)")
-    ap.add_argument("--csv", default=str(ROOT / "results" / "attack_summary.csv"), help="summary table ('' = none)")
+    ap.add_argument(
+        "--csv",
+        default=None,
+        help="summary table ('' = none; default results/attack_summary.csv for the whole battery, OUT/summary.csv "
+        "for a part of it: --only, --limit or --match never overwrite the committed table)",
+    )
     args = ap.parse_args(argv)
+    if args.csv is None:
+        part = args.limit is not None or args.match or set(args.only.split(",")) != set(CATEGORIES)
+        args.csv = str(Path(args.out) / "summary.csv") if part else str(ROOT / "results" / "attack_summary.csv")
     only = [c.strip() for c in args.only.split(",") if c.strip()]
     if bad := [c for c in only if c not in CATEGORIES]:
         ap.error(f"unknown categories {bad}")
