@@ -44,6 +44,7 @@ def rows(folder: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.D
         cfg = rundir.read_config(point)
         metrics = pd.read_csv(point / rundir.METRICS)
         last = metrics[metrics.episode >= metrics.episode.max() - 4]  # training's last 5 episodes
+        ends = int(last["goals"].sum() + last["collisions"].sum())
         ep = episodes(point, suite, ks, max_steps)
         for k, part in ep.groupby("robots_per_room"):
             per_seed = part.groupby("seed")["success"].mean().to_numpy()
@@ -61,8 +62,10 @@ def rows(folder: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.D
                     "worst_seed": float(per_seed.min()),
                     "worst10_rooms": float(worst_mean(per_room)),
                     **{o: float(part[o].mean()) for o in ("collision", "robot_collision", "timeout", "deadlock")},
-                    "train_goal_share": float(last["reached_goal"].mean()),
-                    "train_robot_collisions": float(last["robot_collisions"].mean())
+                    # training's last 5 episodes: the shares of attempts (ended by a goal or a
+                    # collision) ended at the goal, and by touching another robot
+                    "train_goal_share": float(last["goals"].sum() / max(ends, 1)),
+                    "train_robot_share": float(last["robot_collisions"].sum() / max(ends, 1))
                     if "robot_collisions" in last
                     else np.nan,
                     "agent_steps": int(
