@@ -27,10 +27,11 @@ METHODS = {"flddpg": "federated", "iddpg": "independent", "snddpg": "central"}
 
 
 def episodes(point: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
-    """The point's shared-room episodes on `suite` for `ks`: the kept ones when they hold these Ks."""
+    """The point's shared-room episodes on `suite` for `ks`: the kept ones when they hold these Ks (and T)."""
     out = shared_dir(point, suite)
     kept = out / rundir.SHARED_JSON
-    if not (kept.exists() and json.loads(kept.read_text())["robots_per_room"] == ks):
+    same = kept.exists() and json.loads(kept.read_text())["robots_per_room"] == ks
+    if not (same and (max_steps is None or json.loads(kept.read_text())["max_steps"] == max_steps)):
         write_shared(evaluate_shared(point, suite, ks, max_steps=max_steps), out)
     return pd.read_csv(out / rundir.SHARED_EPISODES)
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import functools
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
@@ -92,6 +93,7 @@ def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False, f
         out |= {"steps": steps, "final": states.pose}
         if trajectories:
             out["poses"] = jnp.concatenate([start[None], poses])  # [T + 1, k, 3]
+            out["goals"] = fleet.goals[:, 0]  # [k, 2]
         return out
 
     return jax.jit(jax.vmap(jax.vmap(run, (0, None, 0)), (None, 0, 0)))  # [rooms, agents, k]
@@ -130,6 +132,42 @@ def rooms_of(suite: str | None, world: str | None, attempts: int, ks) -> tuple:
     return stacked, np.array([rundir.world_slug(world)] * attempts), np.full(attempts, -1), True
 
 
+@dataclass
+class SharedProtocol:
+    """What `evaluate_shared` and `shared_figure` run: the rooms (`rooms_of`), the run's env
+    values with the protocol's noise, NavEnv's settings (T the time-out) and each K's keys."""
+
+    run: object  # RunAgents
+    world: object  # World [rooms]
+    families: np.ndarray
+    room_seeds: np.ndarray
+    fixed: bool
+    T: int
+    values: dict
+    settings: tuple
+
+    @property
+    def rooms(self):
+        return make_params(self.world, **self.values)
+
+    def keys(self, seed: int, k: int) -> jax.Array:
+        """Room r, agent a's key [rooms, agents] for K = k."""
+        R, A = int(self.world.goals.shape[0]), self.run.num_agents
+        return jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)
+
+    def program(self, k: int, trajectories: bool = False):
+        return fleet_program(self.settings, greedy_policy(self.run.cfg), k, trajectories, self.fixed)
+
+
+def shared_protocol(run_dir, suite, world, attempts, ks, range_noise, action_noise, max_steps) -> SharedProtocol:
+    world_rows, families, room_seeds, fixed = rooms_of(suite, world, attempts, ks)
+    run = load_run(run_dir)
+    T = int(max_steps or run.cfg.env.episode_length)
+    values = envs.eval_values(run.cfg, range_noise, action_noise)
+    settings = tuple(sorted(envs.env_settings(run.cfg, "eval", noise=True, episode_length=T).items()))
+    return SharedProtocol(run, world_rows, np.asarray(families), np.asarray(room_seeds), fixed, T, values, settings)
+
+
 def evaluate_shared(
     run_dir,
     suite: str | None = "heldout",
@@ -144,28 +182,21 @@ def evaluate_shared(
     """The run's agents on every room of `suite` (or `world`, `attempts` times: `rooms_of`) with K
     robots per room for each K; returns {"summary", "families", "episodes"} (the episodes: one row
     per room x agent x K x robot)."""
-    world_name = world
-    world, families, room_seeds, fixed = rooms_of(suite, world, attempts, robots_per_room)
     ks = sorted({int(k) for k in robots_per_room})
-    run = load_run(run_dir)
-    cfg = run.cfg
-    T = int(max_steps or cfg.env.episode_length)
-    values = envs.eval_values(cfg, range_noise, action_noise)
-    settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
-    rooms = make_params(world, **values)
-    R, A = int(world.goals.shape[0]), run.num_agents
+    pr = shared_protocol(run_dir, suite, world, attempts, ks, range_noise, action_noise, max_steps)
+    run, cfg, families, room_seeds = pr.run, pr.run.cfg, pr.families, pr.room_seeds
+    rooms = pr.rooms
+    R, A = int(pr.world.goals.shape[0]), run.num_agents
     frames, t0 = [], time.time()
     for k in ks:
-        keys = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)
-        program = fleet_program(settings, greedy_policy(cfg), k, fixed=fixed)
-        out = jax.device_get(program(run.actor_params, rooms, keys))
+        out = jax.device_get(pr.program(k)(run.actor_params, rooms, pr.keys(seed, k)))
         out["deadlock"] = deadlocks(out["final"], out["timeout"])
         r, a, i = np.meshgrid(np.arange(R), np.arange(A), np.arange(k), indexing="ij")
         frame = {
             "robots_per_room": k,
             "room": r.ravel(),
-            "family": np.asarray(families)[r.ravel()],
-            "room_seed": np.asarray(room_seeds)[r.ravel()],
+            "family": families[r.ravel()],
+            "room_seed": room_seeds[r.ravel()],
             "seed": run.agent_seed[a.ravel()],
             "net": run.agent_net[a.ravel()],
             "robot": i.ravel(),
@@ -186,15 +217,15 @@ def evaluate_shared(
     summary = {
         "run_dir": str(run.run_dir),
         "method": cfg.method,
-        "suite": None if fixed else suite,
-        "world": world_name,
+        "suite": None if pr.fixed else suite,
+        "world": world,
         "robots_per_room": ks,
         "rooms": R,
         "agents": A,
-        "max_steps": T,
+        "max_steps": pr.T,
         "eval_seed": int(seed),
         "trained_in_shared_rooms": bool(cfg.env.shared_rooms),
-        "noise": {"range_noise": float(values["range_noise"]), "action_noise": float(action_noise)},
+        "noise": {"range_noise": float(pr.values["range_noise"]), "action_noise": float(action_noise)},
         "deadlock_distance": DEADLOCK_DISTANCE,
         "families": fams.to_dict(orient="records"),
         "wall_s": time.time() - t0,
@@ -281,32 +312,29 @@ def shared_figure(
 
     from fedjax_nav.env.render import draw_trajectories, draw_world
 
-    run = load_run(run_dir)
-    cfg = run.cfg
-    world, families, _, fixed = rooms_of(suite, world, attempts, [k])
-    T = int(max_steps or cfg.env.episode_length)
-    values = envs.eval_values(cfg, range_noise, action_noise)
-    settings = tuple(sorted(envs.env_settings(cfg, "eval", noise=True, episode_length=T).items()))
-    room = jax.tree.map(lambda x: x[:1], make_params(world, **values))
-    R, A = int(world.goals.shape[0]), run.num_agents
-    key = jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)[:1, :1]
-    actor = jax.tree.map(lambda x: x[:1], run.actor_params)
-    out_ = jax.device_get(fleet_program(settings, greedy_policy(cfg), k, True, fixed)(actor, room, key))
-    first = jax.tree.map(lambda x: x[0], world)
-    fleet = fixed_fleet(first, k) if fixed else place_fleet(first, jax.random.split(key[0, 0], 3)[0], k, True)
-    fleet = jax.device_get(fleet)
+    pr = shared_protocol(run_dir, suite, world, attempts, [k], range_noise, action_noise, max_steps)
+    first = lambda tree: jax.tree.map(lambda x: x[:1], tree)  # noqa: E731  room 0, agent 0
+    out_ = jax.device_get(
+        pr.program(k, trajectories=True)(first(pr.run.actor_params), first(pr.rooms), pr.keys(seed, k)[:1, :1])
+    )
     poses, steps = out_["poses"][0, 0], out_["steps"][0, 0]  # [T + 1, k, 3], [k]
     fig = Figure(figsize=(5.5, 5.5), layout="constrained")
     ax = fig.add_subplot()
-    own = jax.tree.map(lambda x: x[0], fleet)  # robot 0's row: the room with only its start and goal drawn
-    draw_world(ax, own, title=f"{families[0]} room, {k} robots (discs: starts; rings: goals)", labels=False)
+    room = jax.tree.map(lambda x: x[0], pr.world)
+    room = room.replace(
+        starts=jnp.zeros_like(room.starts[:1]),
+        goals=jnp.zeros_like(room.goals[:1]),
+        num_starts=jnp.int32(0),
+        num_goals=jnp.int32(0),
+    )
+    draw_world(ax, room, title=f"{pr.families[0]} room, {k} robots (discs: starts; rings: goals)", labels=False)
     colors = [f"C{i % 10}" for i in range(k)]
     crashed = out_["collision"][0, 0] | out_["robot_collision"][0, 0]
     ends = ["success" if out_["success"][0, 0, i] else "collision" if crashed[i] else None for i in range(k)]
     draw_trajectories(ax, [poses[: steps[i] + 1, i, :2] for i in range(k)], colors=colors, outcomes=ends)
     for i in range(k):
         ax.add_patch(Circle(tuple(poses[0, i, :2]), ROBOT_DISC, color=colors[i], zorder=5))
-        gx, gy = fleet.goals[i, 0]
-        ax.add_patch(Circle((gx, gy), float(values["goal_radius"]), fill=False, ec=colors[i], lw=1.2))
+        gx, gy = out_["goals"][0, 0, i]
+        ax.add_patch(Circle((gx, gy), float(pr.values["goal_radius"]), fill=False, ec=colors[i], lw=1.2))
     path = Path(out) / rundir.SHARED_FIGURE
     return rundir.save_figure(fig, path, 110)
