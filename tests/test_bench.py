@@ -65,3 +65,42 @@ def test_a_learner_row_counts_every_environment_and_its_gradient_steps():
     assert "train flddpg (ppo) | 1 seed(s) x 2 robots x 3 environments" in text and "gradient steps/s" in text
     assert "GFLOP/s" in text and env["batch"] == env_procedural["batch"] == 6
     assert env["rooms"] == "thesis rooms" and env_procedural["rooms"] == "procedural mixture rooms"
+
+
+def test_each_ppo_row_is_divided_by_the_last_brax_rate_of_the_same_run():
+    rows = [
+        {
+            "bench": "train",
+            "learner": "ppo",
+            "method": "flddpg",
+            "robots": 5,
+            "envs_per_robot": 256,
+            "rooms": "procedural ['mixture']",
+            "agent_steps_per_s": 30.0,
+        },
+        {
+            "bench": "train",
+            "learner": "ppo",
+            "method": "snddpg",
+            "robots": 5,
+            "envs_per_robot": 256,
+            "rooms": "fixed",
+            "agent_steps_per_s": 45.0,
+        },
+        {
+            "bench": "train",
+            "learner": "ppo-gru",
+            "method": "flddpg",
+            "robots": 5,
+            "envs_per_robot": 256,
+            "rooms": "fixed",
+            "agent_steps_per_s": 9.0,
+        },
+        {"bench": "brax_ppo", "agent_steps_per_s": 1.0},
+        {"bench": "brax_ppo", "agent_steps_per_s": 60.0},
+    ]
+    ratios = bench_learners.brax_ratios(rows)
+    assert [r["value"] for r in ratios] == [0.5, 0.75]  # the GRU row is not brax's algorithm
+    text = bench.format_rows(ratios)
+    assert "PPO snddpg (5 x 256 environments, thesis rooms) / brax's steady rate | 0.75x" in text
+    assert "procedural rooms" in text.splitlines()[0]

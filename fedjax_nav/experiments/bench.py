@@ -9,8 +9,10 @@ train: one thesis-scale FLDDPG episode (5 robots, 1024 steps, 205 updates per ro
        and 1, 5 and 40 clients (robots) with one seed; compilation timed separately. Then
        (experiments/bench_learners.py) the other learners with many environments per robot
        (`env.envs_per_robot`): feed-forward and recurrent PPO with 5 robots x 256 environments
-       in procedural rooms, SAC and TD3 with 5 x 64, the env alone at PPO's batch (1280) in the
-       thesis rooms and in procedural rooms, and brax's own PPO at that batch. Their gradient
+       in procedural rooms, central PPO (one network, `method=snddpg`) over the same 1280
+       environments in the thesis rooms (brax's setting), SAC and TD3 with 5 x 64, the env alone
+       at PPO's batch (1280) in the thesis rooms and in procedural rooms, and brax's own PPO at
+       that batch, with each PPO row's ratio to brax's steady rate. Their gradient
        steps per second count PPO's epochs x minibatches and the off-policy `gradient_steps` per
        update event; FLOP/s are the matmuls of every update and every action, counted on the
        learner's own jaxprs (experiments/flops.py).
@@ -307,6 +309,8 @@ def format_rows(rows: list[dict]) -> str:
                 f"mixture rooms, random actions | {r['shared_steps_per_s']:,.0f} agent-steps/s together, "
                 f"{r['separate_steps_per_s']:,.0f} alone: a robot's step costs {r['cost_per_robot']:.2f}x |"
             )
+        elif r["bench"] == "ratio":
+            lines.append(f"| ratio, same run | {r['what']} | {r['value']:.2f}x |")
         elif r["bench"] == "ceiling":
             lines.append(f"| matmul 2048^3 fp32 | ceiling | {r['gflops']:.1f} GFLOP/s |")
         else:

@@ -14,6 +14,8 @@ from fedjax_nav.experiments.bench import bench_env, bench_train
 PROCEDURAL = ("env.rooms=procedural", "env.room_families=[mixture]")
 LEARNER_ROWS = (
     ("ppo", ("env.envs_per_robot=256", *PROCEDURAL)),
+    # brax's setting exactly: one network over 1,280 environments of the thesis rooms (the brax env's)
+    ("ppo", ("env.envs_per_robot=256", "method=snddpg")),
     ("ppo", ("env.envs_per_robot=256", "ppo.recurrent=gru", *PROCEDURAL)),
     ("sac", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
     ("td3", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
@@ -96,4 +98,20 @@ def bench_learners(
         out += bench_env(batches=(env_batch,), steps=200, family="mixture")
     if env_batch and brax:
         out += bench_brax_ppo(num_envs=env_batch, updates=(2, 6) if env_batch >= 1024 else (4, 12))
+        out += brax_ratios(out)
     return out
+
+
+def brax_ratios(rows: list[dict]) -> list[dict]:
+    """Each feed-forward PPO row of the same run against brax's steady rate (the last brax row)."""
+    steady = [r for r in rows if r["bench"] == "brax_ppo"][-1]["agent_steps_per_s"]
+    return [
+        {
+            "bench": "ratio",
+            "what": f"PPO {r['method']} ({r['robots']} x {r['envs_per_robot']} environments, "
+            f"{'thesis' if r['rooms'] == 'fixed' else 'procedural'} rooms) / brax's steady rate",
+            "value": r["agent_steps_per_s"] / steady,
+        }
+        for r in rows
+        if r["bench"] == "train" and r.get("learner") == "ppo"
+    ]
