@@ -43,6 +43,7 @@ TINY = [
     "run.checkpoint_every=0",
     "fed.period=1",
 ]
+PPO_TINY = ["env.envs_per_robot=4", "ppo.rollout=8", "ppo.hidden=16", "run.eval_every=0", "run.seeds=1"]
 # Every thesis method is held to its numbers by tests/test_trainer.py, on the runs that module
 # trains anyway (tests/data/trainer_run_fingerprints.json); here: what those runs do not cover.
 CASES = {
@@ -51,6 +52,10 @@ CASES = {
         ["fed.aggregator=norm_bounded", "fed.attack=scale", "fed.byzantine=1", "fed.participation=0.8"],
     ),
     "method-stale": ("thesis/pwddpg.yaml", ["fed.attack=stale", "fed.byzantine=1"]),
+    # PPO with many environments per robot, federated and central (its minibatch permutation is
+    # agents/shuffle.py's: the same numbers as jax.random.permutation's)
+    "ppo-fleet": ("learners/ppo.yaml", [*PPO_TINY, "method=flddpg"]),
+    "ppo-central": ("learners/ppo.yaml", [*PPO_TINY, "method=snddpg"]),
     "procedural-probe-robot": (
         "thesis/flddpg.yaml",
         ["env.rooms=procedural", "run.eval_every=1", "robot.model=turtlebot3_burger"],
