@@ -67,7 +67,7 @@ def test_a_learner_row_counts_every_environment_and_its_gradient_steps():
     assert env["rooms"] == "thesis rooms" and env_procedural["rooms"] == "procedural mixture rooms"
 
 
-def test_each_ppo_row_is_divided_by_the_last_brax_rate_of_the_same_run():
+def test_each_row_of_braxs_algorithm_is_divided_by_the_last_brax_rate_of_the_same_run():
     rows = [
         {
             "bench": "train",
@@ -77,6 +77,7 @@ def test_each_ppo_row_is_divided_by_the_last_brax_rate_of_the_same_run():
             "envs_per_robot": 256,
             "rooms": "procedural ['mixture']",
             "agent_steps_per_s": 30.0,
+            "vs_brax": True,
         },
         {
             "bench": "train",
@@ -86,6 +87,7 @@ def test_each_ppo_row_is_divided_by_the_last_brax_rate_of_the_same_run():
             "envs_per_robot": 256,
             "rooms": "fixed",
             "agent_steps_per_s": 45.0,
+            "vs_brax": True,
         },
         {
             "bench": "train",
@@ -95,6 +97,7 @@ def test_each_ppo_row_is_divided_by_the_last_brax_rate_of_the_same_run():
             "envs_per_robot": 256,
             "rooms": "fixed",
             "agent_steps_per_s": 9.0,
+            "vs_brax": False,
         },
         {"bench": "brax_ppo", "agent_steps_per_s": 1.0},
         {"bench": "brax_ppo", "agent_steps_per_s": 60.0},

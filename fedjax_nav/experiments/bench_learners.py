@@ -12,10 +12,11 @@ from fedjax_nav.experiments.bench import bench_env, bench_train
 # 5 x 256 environments in procedural rooms (rollout 128 x 256 = 32768 rows per robot and update),
 # SAC and TD3 with 5 x 64 (a buffer of 100k rows per robot, one gradient step per update event).
 PROCEDURAL = ("env.rooms=procedural", "env.room_families=[mixture]")
+# A third field True: the row is brax's algorithm (feed-forward PPO), divided by brax's steady rate.
 LEARNER_ROWS = (
-    ("ppo", ("env.envs_per_robot=256", *PROCEDURAL)),
+    ("ppo", ("env.envs_per_robot=256", *PROCEDURAL), True),
     # brax's setting exactly: one network over 1,280 environments of the thesis rooms (the brax env's)
-    ("ppo", ("env.envs_per_robot=256", "method=snddpg")),
+    ("ppo", ("env.envs_per_robot=256", "method=snddpg"), True),
     ("ppo", ("env.envs_per_robot=256", "ppo.recurrent=gru", *PROCEDURAL)),
     ("sac", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
     ("td3", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
@@ -91,8 +92,9 @@ def bench_learners(
     """`bench train` rows of the learners beside DDPG, and at PPO's batch the env alone (in the
     thesis rooms and in the procedural rooms the learners train in) and brax's PPO."""
     out = []
-    for learner, extra in rows:
-        out += bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner, ceiling=ceiling)
+    for learner, extra, *vs_brax in rows:
+        got = bench_train(seeds=(1,), overrides=(*extra, *overrides), learner=learner, ceiling=ceiling)
+        out += [r | {"vs_brax": bool(vs_brax and vs_brax[0])} for r in got]
     if env_batch:
         out += bench_env(batches=(env_batch,), steps=200)
         out += bench_env(batches=(env_batch,), steps=200, family="mixture")
@@ -103,7 +105,8 @@ def bench_learners(
 
 
 def brax_ratios(rows: list[dict]) -> list[dict]:
-    """Each feed-forward PPO row of the same run against brax's steady rate (the last brax row)."""
+    """Each row of brax's algorithm (`vs_brax`) against brax's steady rate of the same run (the
+    last brax row)."""
     steady = [r for r in rows if r["bench"] == "brax_ppo"][-1]["agent_steps_per_s"]
     return [
         {
@@ -113,5 +116,5 @@ def brax_ratios(rows: list[dict]) -> list[dict]:
             "value": r["agent_steps_per_s"] / steady,
         }
         for r in rows
-        if r["bench"] == "train" and r.get("learner") == "ppo"
+        if r["bench"] == "train" and r.get("vs_brax")
     ]
