@@ -16,29 +16,25 @@ import jax
 import jax.numpy as jnp
 
 from fedjax_nav.agents import ppo, shuffle
-from fedjax_nav.experiments.bench import _train_config
+from fedjax_nav.experiments.bench import warm_chunk
+from fedjax_nav.experiments.bench_learners import ppo_config
 from fedjax_nav.training.hparams import hparams_from_config
-from fedjax_nav.training.trainer import Trainer
 
 PERMUTATIONS = {"shuffle": shuffle.permutation, "jax": jax.random.permutation}
 
 
-def build(cfg, hp, perm):
-    """(jitted update on a random rollout, its inputs, compiled chunk, its state after episode 0),
-    traced with `perm` as PPO's permutation."""
+def build(cfg, perm):
+    """(jitted update on a random rollout, its inputs, compiled chunk, its state after episode 0,
+    rewards, agent-steps per episode), traced with `perm` as PPO's permutation."""
     ppo.shuffle.permutation = perm
     try:
-        tr = Trainer(cfg)
-        states = tr.init_seeds(jnp.arange(1), hp)
+        tr, hp, chunk, states = warm_chunk(cfg)
         agents, bufs = (jax.tree.map(lambda x: x[0], t) for t in (states.agents, states.buffers))
         noise = lambda x: jax.random.normal(jax.random.key(1), x.shape, x.dtype) if x.dtype == jnp.float32 else x
         update = jax.jit(lambda a, b, k: tr._update(a, b, k, jnp.int32(127), hp))
         args = (agents, jax.tree.map(noise, bufs), jax.random.key(0))
         jax.block_until_ready(update(*args))
-        chunk = tr.compiled_chunk()
-        states, m = chunk(states, hp, jnp.int32(0))
-        jax.block_until_ready(m)
-        return [update, args, chunk, states, [float(m["reward"].sum())], tr.num_envs * tr.T]
+        return [update, args, chunk, states, [], tr.num_envs * tr.T]
     finally:
         ppo.shuffle.permutation = shuffle.permutation
 
@@ -55,10 +51,9 @@ def main() -> None:
     ap.add_argument("--updates", type=int, default=6)
     ap.add_argument("--episodes", type=int, default=2)
     args = ap.parse_args()
-    over = ["run.chunk_episodes=1", "run.checkpoint_every=0", "env.envs_per_robot=256", f"method={args.method}"]
-    cfg = _train_config([*over, "env.rooms=procedural", "env.room_families=[mixture]"], "ppo")
+    cfg = ppo_config(args.method)
     hp = hparams_from_config(cfg)
-    runs = {name: build(cfg, hp, perm) for name, perm in PERMUTATIONS.items()}
+    runs = {name: build(cfg, perm) for name, perm in PERMUTATIONS.items()}
     upd, eps = {n: [] for n in runs}, {n: [] for n in runs}
     for i in range(args.updates):
         for n in list(runs)[:: 1 if i % 2 else -1]:

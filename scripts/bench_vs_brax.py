@@ -15,10 +15,8 @@ import time
 import jax
 import jax.numpy as jnp
 
-from fedjax_nav.experiments.bench import _train_config
-from fedjax_nav.experiments.bench_learners import PROCEDURAL, bench_brax_ppo
-from fedjax_nav.training.hparams import hparams_from_config
-from fedjax_nav.training.trainer import Trainer
+from fedjax_nav.experiments.bench import warm_chunk
+from fedjax_nav.experiments.bench_learners import bench_brax_ppo, ppo_config
 
 
 def main() -> None:
@@ -26,14 +24,7 @@ def main() -> None:
     ap.add_argument("--method", default="snddpg")
     ap.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args()
-    over = ["run.chunk_episodes=1", "run.checkpoint_every=0", "env.envs_per_robot=256", f"method={args.method}"]
-    cfg = _train_config([*over, *PROCEDURAL], "ppo")
-    hp = hparams_from_config(cfg)
-    tr = Trainer(cfg)
-    states = tr.init_seeds(jnp.arange(1), hp)
-    chunk = tr.compiled_chunk()
-    states, m = chunk(states, hp, jnp.int32(0))
-    jax.block_until_ready(m)
+    tr, hp, chunk, states = warm_chunk(ppo_config(args.method))
     ours, brax, episode = [], [], 1
 
     def our_episode():

@@ -129,16 +129,10 @@ def main() -> None:
     args = ap.parse_args()
 
     from fedjax_nav.config import get, load_config
-    from fedjax_nav.training.hparams import hparams_from_config
-    from fedjax_nav.training.trainer import Trainer
+    from fedjax_nav.experiments.bench import warm_chunk
 
     cfg = load_config(args.config, [f"run.chunk_episodes={args.episodes}", "run.checkpoint_every=0", *args.set])
-    hp = hparams_from_config(cfg)
-    tr = Trainer(cfg)
-    states = tr.init_seeds(jnp.arange(1), hp)
-    f = tr.compiled_chunk()
-    states, m = f(states, hp, jnp.int32(0))
-    jax.block_until_ready(m)
+    tr, hp, f, states = warm_chunk(cfg)
     t = time.perf_counter()
     states, m = f(states, hp, jnp.int32(args.episodes))
     jax.block_until_ready(m)

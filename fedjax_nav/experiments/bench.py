@@ -157,6 +157,20 @@ def _train_config(overrides, learner: str = "ddpg"):
     return from_dict({**apply_overrides(data, list(overrides)), "learner": learner})
 
 
+def warm_chunk(cfg):
+    """(Trainer, hp, its compiled chunk, states after the chunk's first, compiling call) of `cfg`
+    for one seed: what the profiling scripts time from (scripts/profile_chunk.py, bench_*.py)."""
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
+
+    hp = hparams_from_config(cfg)
+    tr = Trainer(cfg)
+    chunk = tr.compiled_chunk()
+    states, m = chunk(tr.init_seeds(jnp.arange(1), hp), hp, jnp.int32(0))
+    jax.block_until_ready(m)
+    return tr, hp, chunk, states
+
+
 THESIS_LEARNER = Config().learner  # the default: its rows are labelled without it, as before
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import functools
 
-from fedjax_nav.experiments.bench import bench_env, bench_train
+from fedjax_nav.experiments.bench import _train_config, bench_env, bench_train
 
 # The other learners with many environments per robot (docs/learners.md): feed-forward PPO with
 # 5 x 256 environments in procedural rooms (rollout 128 x 256 = 32768 rows per robot and update),
@@ -21,6 +21,13 @@ LEARNER_ROWS = (
     ("sac", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
     ("td3", ("env.envs_per_robot=64", "offpolicy.buffer_size=100000", *PROCEDURAL)),
 )
+
+
+def ppo_config(method: str):
+    """The PPO row's config (5 robots x 256 environments, procedural mixture rooms, one-episode
+    chunks) with `method`: flddpg the federated fleet, snddpg one central network (brax's setting)."""
+    over = ("run.chunk_episodes=1", "run.checkpoint_every=0", "env.envs_per_robot=256", f"method={method}")
+    return _train_config([*over, *PROCEDURAL], "ppo")
 
 
 def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 6)):
