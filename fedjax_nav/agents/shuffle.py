@@ -54,4 +54,3 @@ def permutation(key: jax.Array, n: int) -> jax.Array:
         key, subkey = jax.random.split(key)
         x = x[stable_argsort_u32(jax.random.bits(subkey, (n,), jnp.uint32))]
     return x
-
