@@ -119,6 +119,9 @@ def server_app(cfg: Config | None = None, out: str | Path | None = None) -> Serv
     return server
 
 
+server = server_app()  # the Deployment Engine's ServerApp: the run config names "config" and "out"
+
+
 def run_simulation(cfg: Config, out: str | Path, backend_config: dict | None = None) -> dict:
     """The run `cfg` on Flower's simulation engine (Ray on this machine), one node per robot;
     returns its summary (summary.json of the run directory `out`)."""
