@@ -51,6 +51,7 @@ CURVES = "learning_curves.png"
 CHECKPOINTS = "checkpoints"
 TENSORBOARD = "tensorboard"
 EVAL = "eval"
+FLEET_STATE = "fleet_state.npz"  # a fleet server's round state, to resume after a kill (fedjax_nav.fleet.server)
 NETWORKS = ("actor", "critic")
 
 LOCK = ".lock"  # "PID HOST" of the one writer (fedjax_nav.runlock)

@@ -6,115 +6,91 @@ one run and `run_simulation` the whole run on Flower's simulation engine, one no
 
 from __future__ import annotations
 
-import time
+import hashlib
 from pathlib import Path
 
 import jax
-import numpy as np
-from flwr.app import Array, ArrayRecord, ConfigRecord, Context, Message, MessageType, MetricRecord, RecordDict
+from flwr.app import ArrayRecord, Context, Message, MetricRecord, RecordDict
 from flwr.clientapp import ClientApp
 from flwr.serverapp import Grid, ServerApp
-from flwr.serverapp.strategy import Strategy
 
 from fedjax_nav import rundir
 from fedjax_nav.config import Config, load_config
 from fedjax_nav.fleet import wire
-from fedjax_nav.fleet.robot import FleetError, Robot, rounds
+from fedjax_nav.fleet.robot import FleetError, Robot, load_state, rounds, save_state
 from fedjax_nav.fleet.server import Server
+from fedjax_nav.fleet.strategy import FleetStrategy, numpy_of, record_of
 
 app = ClientApp()
 _ROBOTS: dict[tuple[str, int], Robot] = {}  # (config text, robot): one compiled program per process
 
 
-def _numpy(record: ArrayRecord) -> dict[str, np.ndarray]:
-    return {k: v.numpy() for k, v in record.items()}
+def _robot(text: str, index: int) -> Robot:
+    return _ROBOTS.get((text, index)) or _ROBOTS.setdefault((text, index), Robot(wire.config_from_text(text), index))
 
 
-def _record(arrays: dict) -> ArrayRecord:
-    return ArrayRecord(array_dict={k: Array(np.ascontiguousarray(np.asarray(v))) for k, v in arrays.items()})
+def _start_state(robot: Robot, context: Context, name: str, round_index: int):
+    """The robot's state before round `round_index`: kept in the node's context (this run), or
+    saved on the robot's disk (node config "state-dir": a restarted robot, a resumed run), or the
+    run's initial state."""
+    kept = context.state.array_records.get("state")
+    if kept is not None:
+        return robot.load(numpy_of(kept))
+    folder = context.node_config.get("state-dir")
+    saved = load_state(str(folder), name, round_index) if folder else None
+    return robot.init() if saved is None else robot.load(saved[1])
+
+
+@app.query()
+def query(msg: Message, context: Context) -> Message:
+    """Which robot this node is (its node config's partition-id)."""
+    return Message(
+        RecordDict({"robot": MetricRecord({"index": int(context.node_config["partition-id"])})}), reply_to=msg
+    )
 
 
 @app.train()
 def train(msg: Message, context: Context) -> Message:
-    """One round of robot `partition-id` (node config): take the server's last answer, train
-    fed.period episodes, send its shared fields, reward and key, and its episodes' metrics."""
+    """One round of robot `partition-id` (node config): take the server's answer (the model it
+    holds for this robot and the run's key), train fed.period episodes, send its shared fields,
+    reward and key, and its episodes' metrics; its state stays in the context and, with a node
+    config "state-dir", on its disk."""
     text, index = str(msg.content["config"]["config"]), int(context.node_config["partition-id"])
-    robot = _ROBOTS.get((text, index)) or _ROBOTS.setdefault((text, index), Robot(wire.config_from_text(text), index))
-    kept = context.state.array_records.get("state")
-    states = robot.init() if kept is None else robot.load(_numpy(kept))
+    round_index, robot = int(msg.content["config"]["round"]), _robot(text, index)
+    name = f"robot-{index}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
+    states = _start_state(robot, context, name, round_index)
     if "answer" in msg.content.array_records:
-        states = robot.settle(states, _numpy(msg.content["answer"]))
-    states, metrics = robot.train(states, int(msg.content["config"]["round"]))
-    context.state["state"] = _record(wire.pack(states))
+        states = robot.settle(states, numpy_of(msg.content["answer"]))
+    states, metrics = robot.train(states, round_index)
+    packed = wire.pack(states)
+    context.state["state"] = record_of(packed)
+    if folder := context.node_config.get("state-dir"):
+        save_state(str(folder), name, round_index + 1, packed)
     sent = robot.sent(states)
     content = RecordDict(
         {
-            "sent": _record(sent),
-            "metrics": _record(jax.device_get(metrics)),
+            "sent": record_of(sent),
+            "metrics": record_of(jax.device_get(metrics)),
             "robot": MetricRecord({"index": index, "reward": float(sent["reward"][0])}),
         }
     )
     return Message(content, reply_to=msg)
 
 
-class FleetStrategy(Strategy):
-    """Every robot trains every round; the server's answer to robot i travels with round r + 1's
-    message (the robots' node ids are learnt from their first replies)."""
-
-    def __init__(self, server: Server, wait_s: float = 600.0):
-        self.server, self.text, self.wait_s = server, wire.config_text(server.cfg), wait_s
-        self.nodes: dict[int, int] = {}  # robot -> node id
-        self.answers: list[dict] | None = None
-
-    def configure_train(self, server_round: int, arrays: ArrayRecord, config: ConfigRecord, grid: Grid):
-        n, start = self.server.trainer.num_robots, time.monotonic()
-        while len(nodes := list(grid.get_node_ids())) < n:
-            if time.monotonic() - start > self.wait_s:
-                raise FleetError(f"round {server_round}: {len(nodes)} of {n} robots connected (env.worlds)")
-            time.sleep(0.5)
-        out = []
-        for i, node in enumerate(nodes[:n]) if not self.nodes else self.nodes.items():
-            content = RecordDict({"config": ConfigRecord({"config": self.text, "round": server_round - 1})})
-            if self.answers is not None:
-                content["answer"] = _record(self.answers[i])
-            out.append(Message(content, dst_node_id=node, message_type=MessageType.TRAIN))
-        return out
-
-    def aggregate_train(self, server_round: int, replies):
-        by_robot = {}
-        for reply in replies:
-            if reply.has_error():
-                raise FleetError(f"round {server_round}: a robot failed: {reply.error.reason}")
-            index = int(reply.content["robot"]["index"])
-            self.nodes[index], by_robot[index] = reply.metadata.src_node_id, reply.content
-        order = [by_robot[i] for i in sorted(by_robot)]
-        self.answers = self.server.aggregate([_numpy(c["sent"]) for c in order])
-        self.server.record([_numpy(c["metrics"]) for c in order])
-        rewards = [float(c["robot"]["reward"]) for c in order]
-        return None, MetricRecord({"reward": float(np.mean(rewards)), "clients": int(self.server.stats["clients"])})
-
-    def configure_evaluate(self, server_round: int, arrays: ArrayRecord, config: ConfigRecord, grid: Grid):
-        return []  # the held-out evaluation is `fedjax-nav evaluate` on the run directory
-
-    def aggregate_evaluate(self, server_round: int, replies):
-        return None
-
-    def summary(self) -> None:
-        tr = self.server.trainer
-        print(f"FleetStrategy: {self.server.cfg.method} ({tr.round.rule}), {tr.num_robots} robots")
-
-
 def server_app(cfg: Config | None = None, out: str | Path | None = None) -> ServerApp:
-    """The ServerApp of the run `cfg` writing its run directory `out`; without them, from the run
-    config's "config" (a config file or shipped name) and "out" (`flwr run`, docs/fleet.md)."""
+    """The ServerApp of the run `cfg` writing its run directory `out` after every round (a run
+    directory holding a fleet state of the same config is resumed); without them, from the run
+    config's "config" (a config file or shipped name), "out" and "round-timeout" (`flwr run`)."""
     server = ServerApp()
 
     @server.main()
     def main(grid: Grid, context: Context) -> None:
         c = cfg if cfg is not None else load_config(str(context.run_config["config"]))
-        fleet_server = Server(c)
-        FleetStrategy(fleet_server).start(grid, ArrayRecord(), num_rounds=rounds(c))
-        fleet_server.write(out if out is not None else str(context.run_config["out"]))
+        o = out if out is not None else str(context.run_config["out"])
+        wait = float(context.run_config.get("round-timeout", 600.0))
+        fleet_server = Server(c, o)
+        remaining = rounds(c) - fleet_server.done
+        FleetStrategy(fleet_server, o, wait).start(grid, ArrayRecord(), num_rounds=remaining, timeout=wait)
 
     return server
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from fedjax_nav import rundir
 from fedjax_nav.config import Config, load_config, save_config
-from fedjax_nav.fleet.robot import FleetError, check
+from fedjax_nav.fleet.robot import FleetError, check, rounds
 
 BIN = Path(sys.executable).parent  # flower-superlink, flower-supernode, flwr: the same environment's
 # The project's Flower app: what `flwr run` bundles and the SuperLink runs (fleet.apps).
@@ -54,8 +54,9 @@ serverapp = "fedjax_nav.fleet.apps:server"
 clientapp = "fedjax_nav.fleet.apps:app"
 
 [tool.flwr.app.config]
-config = ""  # the run's config file (a fedjax_nav config, every override resolved)
-out = ""     # the run directory the server writes
+config = ""              # the run's config file (a fedjax_nav config, every override resolved)
+out = ""                 # the run directory the server writes (resumed if it holds this run's fleet state)
+round-timeout = 600.0    # seconds a round waits for the robots' replies (then goes on without the others)
 """
 
 
@@ -127,6 +128,7 @@ class Deployment:
     auth: bool = True
     port: int = field(default_factory=free_port)
     procs: list[subprocess.Popen] = field(default_factory=list)
+    pids: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self):
         self.work.mkdir(parents=True, exist_ok=True)
@@ -139,19 +141,24 @@ class Deployment:
         )
         (self.work / "app").mkdir(exist_ok=True)
         (self.work / "app" / "pyproject.toml").write_text(APP_TOML)
-        self.env = os.environ | {"FLWR_HOME": str(home)}
+        # Each round of a robot runs in a new `flwr-clientapp` process (the SuperNode's subprocess
+        # isolation): JAX's persistent compilation cache spares it the compile of the rounds after
+        # the first. A user's own JAX_COMPILATION_CACHE_DIR is kept.
+        cache = {"JAX_COMPILATION_CACHE_DIR": os.environ.get("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax-cache"))}
+        self.env = os.environ | {"FLWR_HOME": str(home)} | cache
 
     def _start(self, name: str, args: list[str]) -> subprocess.Popen:
-        log = open(self.work / f"{name}.log", "w")
+        log = open(self.work / f"{name}.log", "a")
         proc = subprocess.Popen(
             args, stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=self.work, start_new_session=True
         )
         self.procs.append(proc)
+        self.pids[name] = proc.pid  # each process leads its own group (os.killpg stops it and its children)
+        rundir.write_json(self.work / "pids.json", self.pids)
         return proc
 
     def start_superlink(self, timeout: float = 60.0) -> subprocess.Popen:
         args = [str(BIN / "flower-superlink"), "--port", str(self.port), "--disable-runtime-dependency-installation"]
-        args += ["--database", str(self.work / "superlink.db")]
         if self.tls:
             c = self.certs
             args += ["--ssl-ca-certfile", str(c["ca"]), "--ssl-certfile", str(c["cert"])]
@@ -185,7 +192,8 @@ class Deployment:
     def start_supernode(self, index: int, key: Path | None, retries: int | None = None) -> subprocess.Popen:
         """SuperNode `index` (node config partition-id=index) of robot `index`, signing with `key`."""
         args = [str(BIN / "flower-supernode"), "--superlink", f"127.0.0.1:{self.port}"]
-        args += ["--port", str(free_port()), "--node-config", f"partition-id={index}"]
+        state = self.work / "robots"  # the robot's own disk: its state after each round
+        args += ["--port", str(free_port()), "--node-config", f"partition-id={index} state-dir='{state}'"]
         args += ["--root-certificates", str(self.certs["ca"])] if self.tls else ["--insecure"]
         if key is not None:
             args += ["--auth-supernode-private-key", str(key)]
@@ -193,9 +201,24 @@ class Deployment:
             args += ["--max-retries", str(retries)]
         return self._start(f"supernode-{index}", args)
 
-    def run(self, config: Path, out: Path, timeout: float) -> subprocess.CompletedProcess:
+    def restart_supernode(self, index: int, key: Path | None, timeout: float = 300.0) -> subprocess.Popen:
+        """Start robot `index`'s SuperNode again, as a supervisor would (systemd's Restart=on-failure):
+        the SuperLink refuses a key whose last connection it still counts online (until two
+        heartbeats of 30 s are missed), so a start that exits at once is tried again."""
+        start = time.monotonic()
+        while True:
+            proc = self.start_supernode(index, key)
+            try:
+                proc.wait(timeout=8.0)
+            except subprocess.TimeoutExpired:
+                return proc  # connected (or retrying its connection): running
+            if time.monotonic() - start > timeout:
+                raise FleetError(f"supernode-{index}: not accepted again in {timeout:.0f} s ({self.work}/*.log)")
+            time.sleep(4.0)
+
+    def run(self, config: Path, out: Path, timeout: float, round_timeout: float = 600.0) -> subprocess.CompletedProcess:
         """`flwr run` of the app on this SuperLink; returns when the run has ended."""
-        run_config = f"config='{config.resolve()}' out='{out.resolve()}'"
+        run_config = f"config='{config.resolve()}' out='{out.resolve()}' round-timeout={float(round_timeout)}"
         app = str(self.work / "app")
         result = self.flwr("run", app, "fleet", "--run-config", run_config, "--stream", timeout=timeout)
         (self.work / "run.log").write_text(result.stdout + result.stderr)
@@ -215,13 +238,26 @@ class Deployment:
                 os.killpg(proc.pid, signal.SIGKILL)
 
 
-def deploy(cfg: Config, out: str | Path, *, tls: bool = True, auth: bool = True, timeout: float = 3600.0) -> dict:
+def deploy(
+    cfg: Config,
+    out: str | Path,
+    *,
+    tls: bool = True,
+    auth: bool = True,
+    timeout: float = 3600.0,
+    round_timeout: float = 600.0,
+    resume: bool = False,
+) -> dict:
     """Run `cfg` on the Deployment Engine on this machine (one SuperNode process per robot) and
-    return its summary (summary.json of the run directory `out`)."""
+    return its summary (summary.json of the run directory `out`). `resume`: go on with the run in
+    `out` (its server's round state and the robots' saved states) after a stop or a kill."""
     check(cfg)
     out = Path(out)
-    if held := rundir.results_in(out):  # results are never overwritten
-        raise FleetError(f"{out}: holds a run already ({', '.join(held)}); choose another --out")
+    held = rundir.results_in(out)
+    if resume and not (out / rundir.FLEET_STATE).exists():
+        raise FleetError(f"{out}: holds no fleet run to resume ({rundir.FLEET_STATE})")
+    if held and not resume:  # results are never overwritten
+        raise FleetError(f"{out}: holds a run already ({', '.join(held)}); choose another --out, or --resume it")
     work = out.with_name(out.name + ".deploy")
     work.mkdir(parents=True, exist_ok=True)
     save_config(cfg, work / "run.yaml")
@@ -229,17 +265,28 @@ def deploy(cfg: Config, out: str | Path, *, tls: bool = True, auth: bool = True,
     try:
         d.start_superlink()
         for i in range(cfg.num_robots):
-            private, public = make_node_key(work / "keys", f"robot-{i}")
+            private = work / "keys" / f"robot-{i}"
+            if not private.exists():
+                make_node_key(work / "keys", f"robot-{i}")
             if auth:
-                d.register(public)
+                d.register(private.with_suffix(".pub"))
             d.start_supernode(i, private)
-        result = d.run(work / "run.yaml", out, timeout)
+        result = d.run(work / "run.yaml", out, timeout, round_timeout)
     finally:
         d.stop()
+    return finished(out, work, rounds(cfg), result)
+
+
+def finished(out: Path, work: Path, total: int, result: subprocess.CompletedProcess) -> dict:
+    """The summary of a run that did all its rounds; a one-line FleetError otherwise."""
+    tail = " | ".join((result.stdout + result.stderr).strip().splitlines()[-2:])
     if not (out / rundir.SUMMARY).exists():
-        tail = " | ".join((result.stdout + result.stderr).strip().splitlines()[-3:])
         raise FleetError(f"{out}: the deployment wrote no run directory ({work}/*.log): {tail}")
-    return rundir.read_json(out / rundir.SUMMARY)
+    summary = rundir.read_json(out / rundir.SUMMARY)
+    if summary.get("rounds_done", 0) < total:
+        done = summary.get("rounds_done", 0)
+        raise FleetError(f"{out}: the run stopped after round {done} of {total} ({work}/*.log); go on with --resume")
+    return summary
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -249,14 +296,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="the run directory (OUT.deploy/: the deployment's files)")
     ap.add_argument("--insecure", action="store_true", help="no TLS and no SuperNode authentication")
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds the run may take")
+    ap.add_argument("--round-timeout", type=float, default=600.0, help="seconds a round waits for replies")
+    ap.add_argument("--resume", action="store_true", help="go on with the run in --out after a stop or a kill")
     a = ap.parse_args(argv)
     try:
         cfg = load_config(a.config, a.overrides)
-        summary = deploy(cfg, a.out, tls=not a.insecure, auth=not a.insecure, timeout=a.timeout)
+        secure = not a.insecure
+        summary = deploy(
+            cfg, a.out, tls=secure, auth=secure, timeout=a.timeout, round_timeout=a.round_timeout, resume=a.resume
+        )
     except (FleetError, FileExistsError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(json.dumps({k: summary[k] for k in ("method", "episodes", "aggregation_events") if k in summary}))
+    print(
+        json.dumps({k: summary[k] for k in ("method", "episodes_done", "rounds_done", "reward_last") if k in summary})
+    )
     return 0
 
 

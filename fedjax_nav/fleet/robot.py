@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 from functools import cached_property
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fedjax_nav import methods
+from fedjax_nav import methods, rundir
 from fedjax_nav.config import Config
 from fedjax_nav.fleet import wire
 from fedjax_nav.training import federation
@@ -86,8 +87,36 @@ class Robot:
 
     def settle(self, states, new: dict[str, np.ndarray]):
         """The states with the server's answer in place (`federation.settle`; `new` in `sent`'s
-        "shared…" form, leaves [1, ...])."""
+        "shared…" form, leaves [1, ...]) and the run's key it carries ("key": the same key for a
+        robot that took part in every round, the run's key for one that missed rounds)."""
         own = jax.eval_shape(lambda s: self.trainer.shared(s.agents), jax.tree.map(lambda x: x[0], states))
         taken = wire.unpack(own, {k.removeprefix("shared"): v for k, v in new.items() if k.startswith("shared")})
         settle = lambda s, n: federation.settle(self.trainer.round, s, n, s.agg_state)
-        return jax.vmap(settle)(states, jax.tree.map(lambda x: x[None], taken))
+        states = jax.vmap(settle)(states, jax.tree.map(lambda x: x[None], taken))
+        return states.replace(key=jax.random.wrap_key_data(np.asarray(new["key"])[None])) if "key" in new else states
+
+
+def save_state(folder: str | Path, name: str, trained: int, arrays: dict[str, np.ndarray], keep: int = 2) -> Path:
+    """A robot's packed state after `trained` rounds, NAME-TRAINED.npz in `folder` (the robot's own
+    disk: a restarted robot or a resumed run starts from it), written whole; the `keep` latest kept."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = rundir.atomic_write(folder / f"{name}-{trained}.npz", lambda p: np.savez(open(p, "wb"), **arrays))
+    for old in sorted(_saved(folder, name))[:-keep]:
+        (folder / f"{name}-{old}.npz").unlink(missing_ok=True)
+    return path
+
+
+def load_state(folder: str | Path, name: str, round_index: int) -> tuple[int, dict[str, np.ndarray]] | None:
+    """The robot's saved state for round `round_index` (trained that many rounds), or the latest
+    one before it: (trained, arrays); None when it has none."""
+    found = [t for t in _saved(Path(folder), name) if t <= round_index]
+    if not found:
+        return None
+    with np.load(Path(folder) / f"{name}-{max(found)}.npz") as z:
+        return max(found), {k: z[k] for k in z.files}
+
+
+def _saved(folder: Path, name: str) -> list[int]:
+    tails = (p.stem[len(name) + 1 :] for p in folder.glob(f"{name}-*.npz"))
+    return [int(t) for t in tails if t.isdigit()]

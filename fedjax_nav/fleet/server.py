@@ -1,7 +1,8 @@
 """The fleet's server (docs/fleet.md): the round's exchange (`training.federation.exchange`, the
 in-program round's own function, with the run's aggregator and hyperparameters) over what the
 robots sent, and the run directory a normal run leaves (config.yaml, metrics.csv, summary.json,
-params.npz: `fedjax-nav evaluate` reads it)."""
+params.npz: `fedjax-nav evaluate` reads it), written after every round with the server's round
+state (fleet_state.npz), so that a server killed at any moment resumes where it stopped."""
 
 from __future__ import annotations
 
@@ -22,49 +23,75 @@ from fedjax_nav.training.metrics import metrics_frame, summarize
 from fedjax_nav.training.trainer import Trainer
 
 
-class Server:
-    """The server of the run `cfg` (one seed): the aggregator's state between rounds, the metrics."""
+def _rows(flat: dict[str, np.ndarray], n: int) -> list[dict[str, np.ndarray]]:
+    return [{k: v[i : i + 1] for k, v in flat.items()} for i in range(n)]
 
-    def __init__(self, cfg: Config):
+
+class Server:
+    """The server of the run `cfg` (one seed): the aggregator's state between rounds, what each
+    robot holds after its last exchange (`held`, the answer it gets), the metrics. With `out`
+    holding a fleet state of the same config, the server resumes from it."""
+
+    def __init__(self, cfg: Config, out: str | Path | None = None):
         check(cfg)
         self.cfg, self.trainer, self.hp = cfg, Trainer(cfg), hparams_from_config(cfg)
+        self.n = self.trainer.num_robots
         key = jax.random.key(cfg.run.seed)  # the aggregator starts from the robots' initial agents, as in the program
-        self.agg_state = jax.jit(lambda k: self.trainer.init_agg_state(self.trainer.init_agents(k, self.hp), self.hp))(
-            key
+        agents = jax.jit(self.trainer.init_agents)(key, self.hp)
+        self.agg_state = jax.jit(self.trainer.init_agg_state)(agents, self.hp)
+        self._exchange = jax.jit(
+            lambda own, r, k, s, a: federation.exchange(self.trainer.round, self.hp, own, r, k, s, a)
         )
-        self._exchange = jax.jit(lambda own, r, k, s: federation.exchange(self.trainer.round, self.hp, own, r, k, s))
-        self.metrics: list[dict] = []  # one per round: leaves [1, fed.period, ...]
-        self.shared = None  # the robots' shared fields after the last round, leaves [robots, ...]
+        self.template = jax.eval_shape(self.trainer.shared, agents)
+        # what each robot holds: the initial agents until it takes part in an exchange ("shared…" form)
+        self.held = _rows({"shared" + k: v for k, v in wire.pack(self.trainer.shared(agents)).items()}, self.n)
+        self.sent = [dict(h, reward=np.zeros(1, np.float32)) for h in self.held]  # each robot's last send
+        self.key: np.ndarray | None = None  # the run's key at the last round (key data)
+        self.done, self.metrics, self.stats = 0, [], {}
+        if out is not None and (Path(out) / rundir.FLEET_STATE).exists():
+            self._load(Path(out))
 
-    def aggregate(self, sends: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
-        """One round over every robot's `Robot.sent` (robot order): each robot's answer (its row
-        of the exchange, in the same "shared…" form). The robots must hold the run's one key."""
-        if len(sends) != self.trainer.num_robots:
-            raise FleetError(f"round: {len(sends)} robots answered; the run has {self.trainer.num_robots} (env.worlds)")
-        keys = np.stack([s["key"] for s in sends])
+    def answer(self, robot: int) -> dict[str, np.ndarray] | None:
+        """What robot `robot` takes before its next round: the model the server holds for it and
+        the run's key (a robot that missed rounds takes both); None before the first round."""
+        return None if self.key is None else self.held[robot] | {"key": self.key}
+
+    def aggregate(self, sends: dict[int, dict[str, np.ndarray]]) -> None:
+        """One round over the robots that answered ({robot: its `Robot.sent`}): the others are
+        absent clients (`exchange`'s `answered`), their last send stands in for them."""
+        if not sends:
+            raise FleetError(f"round {self.done + 1}: no robot answered")
+        keys = np.stack([s["key"] for s in sends.values()])
         if not (keys == keys[0]).all():
             raise FleetError("run.seed: the robots' run keys differ (not one run)")
-        names = [k for k in sends[0] if k.startswith("shared")]
-        own = {k: np.concatenate([s[k] for s in sends]) for k in names}  # each robot's leaves are [1, ...]
-        r = np.concatenate([s["reward"] for s in sends])
-        template = jax.eval_shape(
-            self.trainer.shared, jax.eval_shape(self.trainer.init_agents, jax.random.key(0), self.hp)
-        )
-        tree = wire.unpack(template, {k.removeprefix("shared"): v for k, v in own.items()})
+        for i, s in sends.items():
+            self.sent[i] = {k: v for k, v in s.items() if k != "key"}
+        names = [k for k in self.sent[0] if k.startswith("shared")]
+        own = {k.removeprefix("shared"): np.concatenate([s[k] for s in self.sent]) for k in names}
+        r = np.concatenate([s["reward"] for s in self.sent])
+        answered = np.array([i in sends for i in range(self.n)])
         new, self.agg_state, stats = self._exchange(
-            tree, jnp.asarray(r), jax.random.wrap_key_data(keys[0]), self.agg_state
+            wire.unpack(self.template, own),
+            jnp.asarray(r),
+            jax.random.wrap_key_data(keys[0]),
+            self.agg_state,
+            jnp.asarray(answered),
         )
-        self.shared = new
-        self.stats = jax.device_get(stats)
-        flat = {"shared" + k: v for k, v in wire.pack(new).items()}
-        return [{k: v[i : i + 1] for k, v in flat.items()} for i in range(len(sends))]
+        rows = _rows({"shared" + k: v for k, v in wire.pack(new).items()}, self.n)
+        self.held = [rows[i] if answered[i] else self.held[i] for i in range(self.n)]
+        self.key, self.stats, self.done = keys[0], jax.device_get(stats), self.done + 1
 
-    def record(self, per_robot: list[dict[str, np.ndarray]]) -> None:
-        """The round's metrics (each robot's `Robot.train` metrics, robot order), with the round's
-        exchange (`aggregate`'s stats) on its last episode, as the program records it."""
+    def record(self, per_robot: dict[int, dict[str, np.ndarray]]) -> None:
+        """The round's metrics ({robot: its `Robot.train` metrics}; a robot that did not answer
+        has NaN), with the round's exchange (`aggregate`'s stats) on its last episode."""
+        first = next(iter(per_robot.values()))
         m = {}
-        for name, first in per_robot[0].items():
-            m[name] = np.concatenate([p[name] for p in per_robot], axis=2) if first.ndim == 3 else np.array(first)
+        for name, x in first.items():
+            if x.ndim != 3:  # not per robot
+                m[name] = np.array(x)
+                continue
+            lost = np.full_like(x, np.nan, dtype=np.float32 if x.dtype.kind != "f" else x.dtype)
+            m[name] = np.concatenate([per_robot[i][name] if i in per_robot else lost for i in range(self.n)], axis=2)
         for name, value in (
             ("fed_events", 1),
             ("fed_clients", self.stats["clients"]),
@@ -74,8 +101,9 @@ class Server:
         self.metrics.append(m)
 
     def write(self, out: str | Path) -> dict:
-        """The run directory: config.yaml, metrics.csv, summary.json, params.npz (the shared fields
-        without target networks, leaves [1 seed, robot, ...]). Returns the summary."""
+        """The run directory as of the last round: config.yaml, metrics.csv, summary.json,
+        params.npz (the held models without target networks, leaves [1 seed, robot, ...]) and the
+        round state (fleet_state.npz), each written whole (`rundir.atomic_write`). Returns the summary."""
         out = Path(out)
         rundir.make_folder(out, "run directory")
         rundir.write_config(out, self.cfg)
@@ -83,8 +111,32 @@ class Server:
         metrics = {k: np.concatenate([m[k] for m in self.metrics], axis=1) for k in self.metrics[0]}
         df = metrics_frame(metrics, self.cfg, facts)
         rundir.write_metrics(out, df)
-        summary = summarize(df, self.cfg, facts) | {"fleet": "flower"}
+        summary = summarize(df, self.cfg, facts) | {"fleet": "flower", "rounds_done": self.done}
         rundir.write_json(out / rundir.SUMMARY, summary)
-        nets = {k: v for k, v in self.shared.items() if not k.endswith(TARGET_SUFFIX)}
+        held = {k[len("shared") :]: np.concatenate([h[k] for h in self.held]) for k in self.held[0]}
+        nets = {k: v for k, v in wire.unpack(self.template, held).items() if not k.endswith(TARGET_SUFFIX)}
         rundir.write_params(out, jax.tree.map(lambda x: np.asarray(x)[None], nets))
+        rundir.atomic_write(out / rundir.FLEET_STATE, lambda p: np.savez(open(p, "wb"), **self._state()))
         return summary
+
+    def _state(self) -> dict[str, np.ndarray]:
+        state = {"done": np.int64(self.done), "key": self.key}
+        state |= {"agg" + k: v for k, v in wire.pack(self.agg_state).items()}
+        for i in range(self.n):
+            state |= {f"held{i}/{k}": v for k, v in self.held[i].items()}
+            state |= {f"sent{i}/{k}": v for k, v in self.sent[i].items()}
+        for r, m in enumerate(self.metrics):
+            state |= {f"metrics{r}/{k}": v for k, v in m.items()}
+        return state
+
+    def _load(self, out: Path) -> None:
+        if rundir.read_config(out) != self.cfg:
+            raise FleetError(f"{out}: holds a fleet run of another config; resume it with its own config.yaml")
+        with np.load(out / rundir.FLEET_STATE) as z:
+            s = {k: z[k] for k in z.files}
+        self.done, self.key = int(s["done"]), s["key"]
+        part = lambda prefix: {k[len(prefix) :]: v for k, v in s.items() if k.startswith(prefix)}
+        self.agg_state = wire.unpack(self.agg_state, part("agg"))
+        self.held = [part(f"held{i}/") for i in range(self.n)]
+        self.sent = [part(f"sent{i}/") for i in range(self.n)]
+        self.metrics = [part(f"metrics{r}/") for r in range(self.done)]

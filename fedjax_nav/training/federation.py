@@ -92,13 +92,19 @@ def sent(rnd: Round, state) -> tuple[dict, jax.Array]:
     return rnd.shared(state.agents), state.reward_sum / jnp.maximum(state.reward_steps, 1.0)
 
 
-def exchange(rnd: Round, hp: HParams, own: dict, r: jax.Array, key: jax.Array, agg_state) -> tuple[dict, object, dict]:
+def exchange(
+    rnd: Round, hp: HParams, own: dict, r: jax.Array, key: jax.Array, agg_state, answered: jax.Array | None = None
+) -> tuple[dict, object, dict]:
     """The server's half of a round, over what every client sent (`sent`): who takes part (drawn
     from fold_in(key, FED_STREAM), `key` the run's key at the round), the attack on the
     Byzantine clients' sends, the aggregator's update. Returns (what each client holds after the
-    round, the aggregator's new state, the round's stats); see `federated_round`."""
+    round, the aggregator's new state, the round's stats); see `federated_round`. `answered`
+    (bool[clients], a fleet's: the robots whose reply arrived) leaves the others out as absent
+    clients; None (the program's round) adds nothing."""
     k_part, k_attack = jax.random.split(jax.random.fold_in(key, FED_STREAM))
     mask = participation(rnd, k_part, hp)
+    if answered is not None:
+        mask = mask & answered
     n = jnp.sum(mask.astype(jnp.int32))
     held = n >= jnp.maximum(hp.fed.min_clients, 1)
     out, r_sent = own, r
