@@ -52,6 +52,7 @@ CHECKPOINTS = "checkpoints"
 TENSORBOARD = "tensorboard"
 EVAL = "eval"
 FLEET_STATE = "fleet_state.npz"  # a fleet server's round state, to resume after a kill (fedjax_nav.fleet.server)
+FLEET_ROUNDS = "fleet_rounds.csv"  # a fleet's rounds: clients, wall time, bytes each way (fedjax_nav.fleet.strategy)
 NETWORKS = ("actor", "critic")
 
 LOCK = ".lock"  # "PID HOST" of the one writer (fedjax_nav.runlock)

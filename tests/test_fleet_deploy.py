@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -88,6 +89,19 @@ def _rounds_done(out, at_least: int, timeout: float = 600.0) -> int:
     raise TimeoutError(f"{out}: round {at_least} not done in {timeout} s")
 
 
+def _processes_of(folder) -> list[str]:
+    """The command lines of live processes naming `folder` (a deployment's leftovers)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            line = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if proc.name.isdigit() and str(folder) in line and "pytest" not in line:
+            found.append(line)
+    return found
+
+
 def test_a_killed_server_resumes_and_ends_where_the_program_ends(tmp_path):
     args = [*TINY, "run.episodes=6"]  # 3 rounds
     cfg, out = load_config("thesis/flddpg", args), tmp_path / "run"
@@ -105,6 +119,7 @@ def test_a_killed_server_resumes_and_ends_where_the_program_ends(tmp_path):
             np.testing.assert_allclose(got[name], value, rtol=1e-5, atol=1e-6, err_msg=name)
     df = rundir.read_metrics(out)
     assert len(df) == 6 * 2 and df["fed_events"].sum() == 3 * 2 and df["reward"].notna().all()
+    assert _processes_of(tmp_path) == []  # nothing of either deployment outlives it
 
 
 def test_a_killed_robot_is_left_out_of_its_rounds_and_rejoins(tmp_path):
@@ -134,3 +149,4 @@ def test_a_killed_robot_is_left_out_of_its_rounds_and_rejoins(tmp_path):
     robot1 = df[df["robot"] == 1].groupby(df["episode"] // 2)["reward"]  # by round
     assert robot1.apply(lambda r: r.isna().all()).tolist() == [c == 1 for c in clients]
     assert df[df["robot"] == 0]["reward"].notna().all()
+    assert _processes_of(tmp_path) == []

@@ -7,6 +7,7 @@ one run and `run_simulation` the whole run on Flower's simulation engine, one no
 from __future__ import annotations
 
 import hashlib
+import time
 from pathlib import Path
 
 import jax
@@ -61,7 +62,10 @@ def train(msg: Message, context: Context) -> Message:
     states = _start_state(robot, context, name, round_index)
     if "answer" in msg.content.array_records:
         states = robot.settle(states, numpy_of(msg.content["answer"]))
+    start = time.perf_counter()
     states, metrics = robot.train(states, round_index)
+    metrics = jax.device_get(metrics)  # waits for the round's training
+    train_s = time.perf_counter() - start
     packed = wire.pack(states)
     context.state["state"] = record_of(packed)
     if folder := context.node_config.get("state-dir"):
@@ -70,8 +74,8 @@ def train(msg: Message, context: Context) -> Message:
     content = RecordDict(
         {
             "sent": record_of(sent),
-            "metrics": record_of(jax.device_get(metrics)),
-            "robot": MetricRecord({"index": index, "reward": float(sent["reward"][0])}),
+            "metrics": record_of(metrics),
+            "robot": MetricRecord({"index": index, "reward": float(sent["reward"][0]), "train_s": train_s}),
         }
     )
     return Message(content, reply_to=msg)

@@ -235,7 +235,11 @@ class Deployment:
             try:
                 proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
+                pass
+            try:  # and whatever of its group outlived it (a ServerApp or ClientApp subprocess)
                 os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
 
 
 def deploy(

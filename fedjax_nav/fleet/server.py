@@ -6,11 +6,13 @@ state (fleet_state.npz), so that a server killed at any moment resumes where it 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav.config import Config
@@ -48,6 +50,7 @@ class Server:
         self.sent = [dict(h, reward=np.zeros(1, np.float32)) for h in self.held]  # each robot's last send
         self.key: np.ndarray | None = None  # the run's key at the last round (key data)
         self.done, self.metrics, self.stats = 0, [], {}
+        self.rounds_log: list[dict] = []  # one row per round (FleetStrategy): clients, wall time, bytes
         if out is not None and (Path(out) / rundir.FLEET_STATE).exists():
             self._load(Path(out))
 
@@ -116,11 +119,12 @@ class Server:
         held = {k[len("shared") :]: np.concatenate([h[k] for h in self.held]) for k in self.held[0]}
         nets = {k: v for k, v in wire.unpack(self.template, held).items() if not k.endswith(TARGET_SUFFIX)}
         rundir.write_params(out, jax.tree.map(lambda x: np.asarray(x)[None], nets))
+        rundir.write_text(out / rundir.FLEET_ROUNDS, pd.DataFrame(self.rounds_log).to_csv(index=False))
         rundir.atomic_write(out / rundir.FLEET_STATE, lambda p: np.savez(open(p, "wb"), **self._state()))
         return summary
 
     def _state(self) -> dict[str, np.ndarray]:
-        state = {"done": np.int64(self.done), "key": self.key}
+        state = {"done": np.int64(self.done), "key": self.key, "rounds_log": np.array(json.dumps(self.rounds_log))}
         state |= {"agg" + k: v for k, v in wire.pack(self.agg_state).items()}
         for i in range(self.n):
             state |= {f"held{i}/{k}": v for k, v in self.held[i].items()}
@@ -134,7 +138,7 @@ class Server:
             raise FleetError(f"{out}: holds a fleet run of another config; resume it with its own config.yaml")
         with np.load(out / rundir.FLEET_STATE) as z:
             s = {k: z[k] for k in z.files}
-        self.done, self.key = int(s["done"]), s["key"]
+        self.done, self.key, self.rounds_log = int(s["done"]), s["key"], json.loads(str(s["rounds_log"]))
         part = lambda prefix: {k[len(prefix) :]: v for k, v in s.items() if k.startswith(prefix)}
         self.agg_state = wire.unpack(self.agg_state, part("agg"))
         self.held = [part(f"held{i}/") for i in range(self.n)]

@@ -70,24 +70,37 @@ class FleetStrategy(Strategy):
             time.sleep(0.5)
 
     def configure_train(self, server_round: int, arrays: ArrayRecord, config: ConfigRecord, grid: Grid):
-        out = []
+        out, self._start, self._down = [], time.monotonic(), 0
         for i in self.present(grid):
             content = RecordDict({"config": ConfigRecord({"config": self.text, "round": self.server.done})})
             if (answer := self.server.answer(i)) is not None:
                 content["answer"] = record_of(answer)
+                self._down += sum(np.asarray(v).nbytes for v in answer.values())
             out.append(Message(content, dst_node_id=self.nodes[i], message_type=MessageType.TRAIN))
         return out
 
     def aggregate_train(self, server_round: int, replies):
-        sends, metrics = {}, {}
+        sends, metrics, train_s = {}, {}, []
         for reply in replies:
             if reply.has_error():
                 log(WARNING, "round %s: a robot did not answer: %s", self.server.done + 1, reply.error.reason)
                 continue
             index = int(reply.content["robot"]["index"])
             sends[index], metrics[index] = numpy_of(reply.content["sent"]), numpy_of(reply.content["metrics"])
+            train_s.append(float(reply.content["robot"]["train_s"]))
         self.server.aggregate(sends)
         self.server.record(metrics)
+        self.server.rounds_log.append(
+            {
+                "round": self.server.done,
+                "clients": len(sends),
+                "wall_s": time.monotonic() - self._start,
+                "robot_train_s_max": max(train_s, default=0.0),
+                "bytes_to_robots": self._down,  # payload: the answers' arrays (the config text not counted)
+                "bytes_params_from_robots": sum(a.nbytes for s in sends.values() for a in s.values()),
+                "bytes_metrics_from_robots": sum(a.nbytes for m in metrics.values() for a in m.values()),
+            }
+        )
         self.server.write(self.out)
         reward = float(np.mean([s["reward"] for s in sends.values()]))
         return None, MetricRecord({"reward": reward, "clients": int(self.server.stats["clients"])})
