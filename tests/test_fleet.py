@@ -98,3 +98,43 @@ def test_the_flower_simulation_ends_where_the_program_ends(tmp_path, name, overr
     df = rundir.read_metrics(tmp_path / "run")
     assert len(df) == cfg.run.episodes * 2 and df["fed_events"].sum() == 2 * 2  # one per round, on each robot's row
     assert rundir.read_config(tmp_path / "run") == cfg
+
+
+def _sends(server, scale=1.0, seed=0):
+    """Each robot's send as it would arrive: the model the server holds for it, perturbed."""
+    rng = np.random.default_rng(seed)
+    key = np.asarray(jax.random.key_data(jax.random.key(0)))
+    out = {}
+    for i, held in enumerate(server.held):
+        shared = {k: (v + rng.normal(0, 0.01, v.shape)).astype(v.dtype) for k, v in held.items()}
+        out[i] = shared | {"reward": np.array([0.5], np.float32), "key": key}
+    out[2] = {k: v * scale if k.startswith("shared") else v for k, v in out[2].items()}
+    return out
+
+
+def _largest(server, robots=(0, 1)) -> float:
+    return max(float(np.abs(server.held[i][k]).max()) for i in robots for k in server.held[i])
+
+
+@pytest.mark.parametrize("rule", ["mean", "median"])
+def test_the_server_refuses_nan_and_misshapen_sends_and_a_robust_rule_outvotes_a_scaled_one(rule):
+    from fedjax_nav.fleet.server import Server
+
+    cfg = load_config("thesis/flddpg", [*TINY, "env.worlds=[train-0,train-2,train-3]", f"fed.aggregator={rule}"])
+    server = Server(cfg)
+    honest = _largest(server)
+
+    sends = _sends(server)
+    name = next(iter(sends[2]))
+    sends[2][name] = np.full_like(sends[2][name], np.nan)
+    sends[1][name] = sends[1][name][..., :-1]
+    refused = server.aggregate(sends)
+    assert set(refused) == {1, 2} and "not finite" in refused[2] and "the run's is" in refused[1]
+    assert int(server.stats["clients"]) == 1 and np.isfinite(_largest(server, (0, 1, 2)))
+
+    refused = server.aggregate(_sends(server, scale=100.0, seed=1))  # robot 2 scales its update
+    assert refused == {} and int(server.stats["clients"]) == 3
+    if rule == "median":  # outvoted: the honest robots stay where honest models are
+        assert _largest(server) < 2 * honest
+    else:  # the plain mean is pulled away (what the robust rules are for)
+        assert _largest(server) > 10 * honest

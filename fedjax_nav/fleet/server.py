@@ -45,6 +45,7 @@ class Server:
             lambda own, r, k, s, a: federation.exchange(self.trainer.round, self.hp, own, r, k, s, a)
         )
         self.template = jax.eval_shape(self.trainer.shared, agents)
+        self._key_shape = jax.random.key_data(key).shape
         # what each robot holds: the initial agents until it takes part in an exchange ("shared…" form)
         self.held = _rows({"shared" + k: v for k, v in wire.pack(self.trainer.shared(agents)).items()}, self.n)
         self.sent = [dict(h, reward=np.zeros(1, np.float32)) for h in self.held]  # each robot's last send
@@ -59,14 +60,37 @@ class Server:
         the run's key (a robot that missed rounds takes both); None before the first round."""
         return None if self.key is None else self.held[robot] | {"key": self.key}
 
-    def aggregate(self, sends: dict[int, dict[str, np.ndarray]]) -> None:
-        """One round over the robots that answered ({robot: its `Robot.sent`}): the others are
-        absent clients (`exchange`'s `answered`), their last send stands in for them."""
+    def refusal(self, send: dict[str, np.ndarray]) -> str | None:
+        """Why a robot's send cannot enter the round (one line), or None: every shared field of
+        the run's shape and dtype and finite, a finite reward, a run key."""
+        want = self.held[0] | {"reward": self.sent[0]["reward"], "key": np.zeros(self._key_shape, np.uint32)}
+        for name, ref in want.items():
+            x = send.get(name)
+            if x is None:
+                return f"no array {name!r}"
+            if x.shape != ref.shape or x.dtype != ref.dtype:
+                return f"{name}: {x.dtype}{list(x.shape)}, the run's is {ref.dtype}{list(ref.shape)}"
+            if x.dtype.kind == "f" and not np.isfinite(x).all():
+                return f"{name}: not finite"
+        return None
+
+    def aggregate(self, sends: dict[int, dict[str, np.ndarray]]) -> dict[int, str]:
+        """One round over the robots that answered ({robot: its `Robot.sent`}): the others, and
+        those whose send is refused (`refusal`, or a run key other than most robots'), are absent
+        clients (`exchange`'s `answered`); their last good send stands in for them. Returns the
+        refused robots: {robot: why}."""
+        refused = {i: why for i, s in sends.items() if (why := self.refusal(s)) is not None}
+        sends = {i: s for i, s in sends.items() if i not in refused}
+        if sends:
+            keys, counts = np.unique(np.stack([s["key"] for s in sends.values()]), axis=0, return_counts=True)
+            run_key = keys[np.argmax(counts)]
+            refused |= {
+                i: "run key: not the fleet's (not this run)" for i, s in sends.items() if (s["key"] != run_key).any()
+            }
+            sends = {i: s for i, s in sends.items() if i not in refused}
         if not sends:
-            raise FleetError(f"round {self.done + 1}: no robot answered")
+            raise FleetError(f"round {self.done + 1}: no robot's send could be used ({refused or 'none answered'})")
         keys = np.stack([s["key"] for s in sends.values()])
-        if not (keys == keys[0]).all():
-            raise FleetError("run.seed: the robots' run keys differ (not one run)")
         for i, s in sends.items():
             self.sent[i] = {k: v for k, v in s.items() if k != "key"}
         names = [k for k in self.sent[0] if k.startswith("shared")]
@@ -83,6 +107,7 @@ class Server:
         rows = _rows({"shared" + k: v for k, v in wire.pack(new).items()}, self.n)
         self.held = [rows[i] if answered[i] else self.held[i] for i in range(self.n)]
         self.key, self.stats, self.done = keys[0], jax.device_get(stats), self.done + 1
+        return refused
 
     def record(self, per_robot: dict[int, dict[str, np.ndarray]]) -> None:
         """The round's metrics ({robot: its `Robot.train` metrics}; a robot that did not answer

@@ -88,12 +88,15 @@ class FleetStrategy(Strategy):
             index = int(reply.content["robot"]["index"])
             sends[index], metrics[index] = numpy_of(reply.content["sent"]), numpy_of(reply.content["metrics"])
             train_s.append(float(reply.content["robot"]["train_s"]))
-        self.server.aggregate(sends)
+        refused = self.server.aggregate(sends)
+        for i, why in refused.items():
+            log(WARNING, "round %s: robot %s's send refused: %s", self.server.done, i, why)
         self.server.record(metrics)
         self.server.rounds_log.append(
             {
                 "round": self.server.done,
-                "clients": len(sends),
+                "answered": len(sends),
+                "refused": len(refused),
                 "wall_s": time.monotonic() - self._start,
                 "robot_train_s_max": max(train_s, default=0.0),
                 "bytes_to_robots": self._down,  # payload: the answers' arrays (the config text not counted)
@@ -102,7 +105,7 @@ class FleetStrategy(Strategy):
             }
         )
         self.server.write(self.out)
-        reward = float(np.mean([s["reward"] for s in sends.values()]))
+        reward = float(np.mean([s["reward"] for i, s in sends.items() if i not in refused]))
         return None, MetricRecord({"reward": reward, "clients": int(self.server.stats["clients"])})
 
     def configure_evaluate(self, server_round: int, arrays: ArrayRecord, config: ConfigRecord, grid: Grid):
