@@ -138,3 +138,22 @@ def test_the_server_refuses_nan_and_misshapen_sends_and_a_robust_rule_outvotes_a
         assert _largest(server) < 2 * honest
     else:  # the plain mean is pulled away (what the robust rules are for)
         assert _largest(server) > 10 * honest
+
+
+def test_a_byzantine_robot_sends_the_programs_attack_and_the_median_outvotes_it():
+    from fedjax_nav.fleet.robot import Robot
+    from fedjax_nav.fleet.server import Server
+
+    cfg = load_config("thesis/flddpg", [*TINY, "env.worlds=[train-0,train-2,train-3]", "fed.aggregator=median"])
+    server, liar = Server(cfg), Robot(cfg, 2)
+    honest, initial = _largest(server), dict(server.held[2])  # robot 2's initial model, as the robot has it
+    sends = _sends(server)
+    truthful = sends[2]
+    sends[2] = liar.attacked(truthful, "scale", None)  # node config byzantine=scale, no answer taken yet
+    for name, ref in initial.items():  # the program's "scale": reference + (-10) (own - reference)
+        np.testing.assert_allclose(sends[2][name], ref - 10.0 * (truthful[name] - ref), rtol=1e-5, atol=1e-6)
+    noisy = liar.attacked(truthful, "noise", None)
+    assert all(np.isfinite(noisy[k]).all() and not np.allclose(noisy[k], truthful[k]) for k in initial)
+    with pytest.raises(FleetError, match="^byzantine: 'stale' is no attack a robot sends"):
+        liar.attacked(truthful, "stale", None)
+    assert server.aggregate(sends) == {} and _largest(server) < 2 * honest  # outvoted

@@ -71,6 +71,9 @@ def train(msg: Message, context: Context) -> Message:
     if folder := context.node_config.get("state-dir"):
         save_state(str(folder), name, round_index + 1, packed)
     sent = robot.sent(states)
+    if kind := context.node_config.get("byzantine"):  # a robot that lies (docs/fleet.md, "Faults and trust")
+        answer = numpy_of(msg.content["answer"]) if "answer" in msg.content.array_records else None
+        sent = robot.attacked(sent, str(kind), answer)
     content = RecordDict(
         {
             "sent": record_of(sent),
@@ -81,17 +84,20 @@ def train(msg: Message, context: Context) -> Message:
     return Message(content, reply_to=msg)
 
 
-def server_app(cfg: Config | None = None, out: str | Path | None = None) -> ServerApp:
+def server_app(
+    cfg: Config | None = None, out: str | Path | None = None, round_timeout: float | None = None
+) -> ServerApp:
     """The ServerApp of the run `cfg` writing its run directory `out` after every round (a run
-    directory holding a fleet state of the same config is resumed); without them, from the run
-    config's "config" (a config file or shipped name), "out" and "round-timeout" (`flwr run`)."""
+    directory holding a fleet state of the same config is resumed), a round waiting at most
+    `round_timeout` s for the robots' replies; without them, from the run config's "config" (a
+    config file or shipped name), "out" and "round-timeout" (600 s; `flwr run`)."""
     server = ServerApp()
 
     @server.main()
     def main(grid: Grid, context: Context) -> None:
         c = cfg if cfg is not None else load_config(str(context.run_config["config"]))
         o = out if out is not None else str(context.run_config["out"])
-        wait = float(context.run_config.get("round-timeout", 600.0))
+        wait = round_timeout or float(context.run_config.get("round-timeout", 600.0))
         fleet_server = Server(c, o)
         remaining = rounds(c) - fleet_server.done
         FleetStrategy(fleet_server, o, wait).start(grid, ArrayRecord(), num_rounds=remaining, timeout=wait)
@@ -102,15 +108,18 @@ def server_app(cfg: Config | None = None, out: str | Path | None = None) -> Serv
 server = server_app()  # the Deployment Engine's ServerApp: the run config names "config" and "out"
 
 
-def run_simulation(cfg: Config, out: str | Path, backend_config: dict | None = None) -> dict:
+def run_simulation(
+    cfg: Config, out: str | Path, backend_config: dict | None = None, round_timeout: float = 3600.0
+) -> dict:
     """The run `cfg` on Flower's simulation engine (Ray on this machine), one node per robot;
-    returns its summary (summary.json of the run directory `out`)."""
+    returns its summary (summary.json of the run directory `out`). `round_timeout`: the longest
+    a round waits for the robots (the first round compiles every robot's program, on a few
+    cores one after the other: 50 robots took over 10 minutes here)."""
     from flwr.simulation import run_simulation as flower_simulation
 
     resources = {"client_resources": {"num_cpus": 1, "num_gpus": 0.0}}
-    flower_simulation(
-        server_app(cfg, out), app, num_supernodes=cfg.num_robots, backend_config=backend_config or resources
-    )
+    backend = backend_config or resources
+    flower_simulation(server_app(cfg, out, round_timeout), app, num_supernodes=cfg.num_robots, backend_config=backend)
     path = Path(out) / rundir.SUMMARY
     if not path.exists():
         raise FleetError(f"{out}: the simulation wrote no run directory (see Flower's log above)")

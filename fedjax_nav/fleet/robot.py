@@ -16,6 +16,7 @@ import numpy as np
 
 from fedjax_nav import methods, rundir
 from fedjax_nav.config import Config
+from fedjax_nav.federated import attacks
 from fedjax_nav.fleet import wire
 from fedjax_nav.training import federation
 from fedjax_nav.training.hparams import hparams_from_config
@@ -90,10 +91,38 @@ class Robot:
         "shared…" form, leaves [1, ...]) and the run's key it carries ("key": the same key for a
         robot that took part in every round, the run's key for one that missed rounds)."""
         own = jax.eval_shape(lambda s: self.trainer.shared(s.agents), jax.tree.map(lambda x: x[0], states))
-        taken = wire.unpack(own, {k.removeprefix("shared"): v for k, v in new.items() if k.startswith("shared")})
+        taken = wire.unpack(own, _shared_fields(new))
         settle = lambda s, n: federation.settle(self.trainer.round, s, n, s.agg_state)
         states = jax.vmap(settle)(states, jax.tree.map(lambda x: x[None], taken))
         return states.replace(key=jax.random.wrap_key_data(np.asarray(new["key"])[None])) if "key" in new else states
+
+    def attacked(self, sent: dict[str, np.ndarray], kind: str, reference: dict[str, np.ndarray] | None):
+        """What a Byzantine robot sends instead of `sent` (node config "byzantine": a fed.attack
+        name): the program's attack on its own shared fields, with fed.attack_scale when the run's
+        fed.attack is this one (else the attack's default), noise drawn from the run's key, and
+        for scale and sign_flip the model it last took from the server as the reference
+        (`reference`, `sent`'s form; None: its initial model). "stale" is the server's alone."""
+        if kind not in attacks.ATTACKS or kind == "stale":
+            allowed = ", ".join(a for a in attacks.ATTACKS if a != "stale")
+            raise FleetError(f"byzantine: {kind!r} is no attack a robot sends (allowed: {allowed})")
+        one = jax.eval_shape(lambda s: self.trainer.shared(jax.tree.map(lambda x: x[0], s.agents)), self.template)
+        shared = lambda d: wire.unpack(
+            one, {k.removeprefix("shared"): v for k, v in d.items() if k.startswith("shared")}
+        )
+        if reference is None:
+            reference = {
+                "shared" + k: v[0] for k, v in wire.pack(jax.vmap(self.trainer.shared)(self.init().agents)).items()
+            }
+        ref = jax.tree.map(lambda x: x[0], shared(reference))
+        scale = self.hp.fed.attack_scale if self.cfg.fed.attack == kind else None
+        key = jax.random.fold_in(jax.random.wrap_key_data(sent["key"]), self.index)
+        bad = attacks.apply_attack(kind, shared(sent), jnp.ones(1, bool), key, scale, ref)
+        return sent | {"shared" + k: np.asarray(v) for k, v in wire.pack(bad).items()}
+
+
+def _shared_fields(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The shared fields of a send or an answer ("shared…" arrays), by their pytree paths."""
+    return {k.removeprefix("shared"): v for k, v in arrays.items() if k.startswith("shared")}
 
 
 def save_state(folder: str | Path, name: str, trained: int, arrays: dict[str, np.ndarray], keep: int = 2) -> Path:
