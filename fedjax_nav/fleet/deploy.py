@@ -40,7 +40,7 @@ build-backend = "hatchling.build"
 name = "fedjax-nav-fleet"
 version = "1.0.0"
 description = "fedjax_nav's federated round on Flower (docs/fleet.md)"
-license = "Apache-2.0"
+license = "MIT"
 dependencies = ["fedjax_nav[fleet]"]
 
 [tool.hatch.build.targets.wheel]
