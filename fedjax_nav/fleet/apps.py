@@ -60,8 +60,9 @@ def train(msg: Message, context: Context) -> Message:
     round_index, robot = int(msg.content["config"]["round"]), _robot(text, index)
     name = f"robot-{index}-{hashlib.sha256(text.encode()).hexdigest()[:8]}"
     states = _start_state(robot, context, name, round_index)
-    if "answer" in msg.content.array_records:
-        states = robot.settle(states, numpy_of(msg.content["answer"]))
+    answer = numpy_of(msg.content["answer"]) if "answer" in msg.content.array_records else None
+    if answer is not None:
+        states = robot.settle(states, answer)
     start = time.perf_counter()
     states, metrics = robot.train(states, round_index)
     metrics = jax.device_get(metrics)  # waits for the round's training
@@ -72,7 +73,6 @@ def train(msg: Message, context: Context) -> Message:
         save_state(str(folder), name, round_index + 1, packed)
     sent = robot.sent(states)
     if kind := context.node_config.get("byzantine"):  # a robot that lies (docs/fleet.md, "Faults and trust")
-        answer = numpy_of(msg.content["answer"]) if "answer" in msg.content.array_records else None
         sent = robot.attacked(sent, str(kind), answer)
     content = RecordDict(
         {

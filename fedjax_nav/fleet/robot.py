@@ -71,6 +71,11 @@ class Robot:
     def template(self):
         return jax.eval_shape(self.init)
 
+    @cached_property
+    def shared_template(self):
+        """The shapes of one seed's shared fields (leaves [1 robot, ...]), as sent and answered."""
+        return jax.eval_shape(lambda s: self.trainer.shared(jax.tree.map(lambda x: x[0], s.agents)), self.template)
+
     def load(self, arrays: dict[str, np.ndarray]):
         return wire.unpack(self.template, arrays)
 
@@ -83,15 +88,14 @@ class Robot:
         """What the robot sends (`federation.sent`): its shared fields ("shared…" paths, leaves
         [1, ...]), its mean reward ("reward", f32[1]) and the run's key at the round ("key")."""
         own, r = jax.vmap(lambda s: federation.sent(self.trainer.round, s))(states)
-        out = {"shared" + k: v[0] for k, v in wire.pack(own).items()}
+        out = {k: v[0] for k, v in wire.shared_arrays(own).items()}
         return out | {"reward": np.asarray(r[0]), "key": np.asarray(jax.random.key_data(states.key[0]))}
 
     def settle(self, states, new: dict[str, np.ndarray]):
         """The states with the server's answer in place (`federation.settle`; `new` in `sent`'s
         "shared…" form, leaves [1, ...]) and the run's key it carries ("key": the same key for a
         robot that took part in every round, the run's key for one that missed rounds)."""
-        own = jax.eval_shape(lambda s: self.trainer.shared(s.agents), jax.tree.map(lambda x: x[0], states))
-        taken = wire.unpack(own, _shared_fields(new))
+        taken = wire.unpack(self.shared_template, wire.shared_fields(new))
         settle = lambda s, n: federation.settle(self.trainer.round, s, n, s.agg_state)
         states = jax.vmap(settle)(states, jax.tree.map(lambda x: x[None], taken))
         return states.replace(key=jax.random.wrap_key_data(np.asarray(new["key"])[None])) if "key" in new else states
@@ -105,24 +109,12 @@ class Robot:
         if kind not in attacks.ATTACKS or kind == "stale":
             allowed = ", ".join(a for a in attacks.ATTACKS if a != "stale")
             raise FleetError(f"byzantine: {kind!r} is no attack a robot sends (allowed: {allowed})")
-        one = jax.eval_shape(lambda s: self.trainer.shared(jax.tree.map(lambda x: x[0], s.agents)), self.template)
-        shared = lambda d: wire.unpack(
-            one, {k.removeprefix("shared"): v for k, v in d.items() if k.startswith("shared")}
-        )
-        if reference is None:
-            reference = {
-                "shared" + k: v[0] for k, v in wire.pack(jax.vmap(self.trainer.shared)(self.init().agents)).items()
-            }
-        ref = jax.tree.map(lambda x: x[0], shared(reference))
+        shared = lambda d: wire.unpack(self.shared_template, wire.shared_fields(d))
+        ref = jax.tree.map(lambda x: x[0], shared(reference if reference is not None else self.sent(self.init())))
         scale = self.hp.fed.attack_scale if self.cfg.fed.attack == kind else None
         key = jax.random.fold_in(jax.random.wrap_key_data(sent["key"]), self.index)
         bad = attacks.apply_attack(kind, shared(sent), jnp.ones(1, bool), key, scale, ref)
-        return sent | {"shared" + k: np.asarray(v) for k, v in wire.pack(bad).items()}
-
-
-def _shared_fields(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The shared fields of a send or an answer ("shared…" arrays), by their pytree paths."""
-    return {k.removeprefix("shared"): v for k, v in arrays.items() if k.startswith("shared")}
+        return sent | {k: np.asarray(v) for k, v in wire.shared_arrays(bad).items()}
 
 
 def save_state(folder: str | Path, name: str, trained: int, arrays: dict[str, np.ndarray], keep: int = 2) -> Path:

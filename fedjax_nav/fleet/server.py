@@ -47,7 +47,7 @@ class Server:
         self.template = jax.eval_shape(self.trainer.shared, agents)
         self._key_shape = jax.random.key_data(key).shape
         # what each robot holds: the initial agents until it takes part in an exchange ("shared…" form)
-        self.held = _rows({"shared" + k: v for k, v in wire.pack(self.trainer.shared(agents)).items()}, self.n)
+        self.held = _rows(wire.shared_arrays(self.trainer.shared(agents)), self.n)
         self.sent = [dict(h, reward=np.zeros(1, np.float32)) for h in self.held]  # each robot's last send
         self.key: np.ndarray | None = None  # the run's key at the last round (key data)
         self.done, self.metrics, self.stats = 0, [], {}
@@ -93,8 +93,7 @@ class Server:
         keys = np.stack([s["key"] for s in sends.values()])
         for i, s in sends.items():
             self.sent[i] = {k: v for k, v in s.items() if k != "key"}
-        names = [k for k in self.sent[0] if k.startswith("shared")]
-        own = {k.removeprefix("shared"): np.concatenate([s[k] for s in self.sent]) for k in names}
+        own = wire.shared_fields({k: np.concatenate([s[k] for s in self.sent]) for k in self.held[0]})
         r = np.concatenate([s["reward"] for s in self.sent])
         answered = np.array([i in sends for i in range(self.n)])
         new, self.agg_state, stats = self._exchange(
@@ -104,7 +103,7 @@ class Server:
             self.agg_state,
             jnp.asarray(answered),
         )
-        rows = _rows({"shared" + k: v for k, v in wire.pack(new).items()}, self.n)
+        rows = _rows(wire.shared_arrays(new), self.n)
         self.held = [rows[i] if answered[i] else self.held[i] for i in range(self.n)]
         self.key, self.stats, self.done = keys[0], jax.device_get(stats), self.done + 1
         return refused
@@ -141,7 +140,7 @@ class Server:
         rundir.write_metrics(out, df)
         summary = summarize(df, self.cfg, facts) | {"fleet": "flower", "rounds_done": self.done}
         rundir.write_json(out / rundir.SUMMARY, summary)
-        held = {k[len("shared") :]: np.concatenate([h[k] for h in self.held]) for k in self.held[0]}
+        held = wire.shared_fields({k: np.concatenate([h[k] for h in self.held]) for k in self.held[0]})
         nets = {k: v for k, v in wire.unpack(self.template, held).items() if not k.endswith(TARGET_SUFFIX)}
         rundir.write_params(out, jax.tree.map(lambda x: np.asarray(x)[None], nets))
         rundir.write_text(out / rundir.FLEET_ROUNDS, pd.DataFrame(self.rounds_log).to_csv(index=False))

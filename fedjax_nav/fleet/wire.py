@@ -43,3 +43,16 @@ def unpack(template, arrays: dict[str, np.ndarray]):
         x = arrays[name]
         leaves.append(jax.random.wrap_key_data(x) if _is_key(t) else jax.numpy.asarray(x, t.dtype))
     return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+SHARED = "shared"  # the prefix of a learner's shared fields among a message's arrays
+
+
+def shared_arrays(tree) -> dict[str, np.ndarray]:
+    """`pack` of a tree of shared fields, each path prefixed with SHARED (a message's form)."""
+    return {SHARED + k: v for k, v in pack(tree).items()}
+
+
+def shared_fields(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """`shared_arrays`' inverse on a message's arrays: the shared fields by their tree paths."""
+    return {k.removeprefix(SHARED): v for k, v in arrays.items() if k.startswith(SHARED)}
