@@ -1,14 +1,17 @@
 """One robot of a fleet (a Flower client, docs/fleet.md): its slice of the run's compiled program
-(`Trainer(fleet=(i, robots))`: robot i's rooms, learner and key stream, no round compiled in),
-run fed.period episodes a round. Between rounds its whole training state is a flat dict of arrays
-(`wire.pack`), which the Flower client keeps in its context. The round itself is
+(`Trainer(fleet=(i, robots))`: robot i's rooms, learner and key stream, no round compiled in; one
+program per world, the robot's index traced), run fed.period episodes a round. Between rounds its
+whole training state is a flat dict of arrays (`wire.pack`), which the Flower client keeps in its
+context. The round itself is
 `training.federation`'s: the robot `sent`s, the server `exchange`s, the robot `settle`s."""
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from functools import cached_property
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -50,22 +53,45 @@ def rounds(cfg: Config) -> int:
     return cfg.run.episodes // cfg.fed.period
 
 
+class Program(NamedTuple):
+    """One world's compiled program of a fleet's robots (`program`)."""
+
+    trainer: Trainer  # robot 0's (`Trainer.robot(i)` is robot i's)
+    hp: object  # the run's HParams
+    init: Callable  # (seeds, hp, index) -> states
+    chunk: Callable  # (states, hp, first_episode, index) -> (states, metrics): fed.period episodes
+
+
+@functools.lru_cache(maxsize=None)
+def program(text: str, world: str) -> Program:
+    """The compiled program of every robot of the run `text` (`wire.config_text`) that drives in
+    `world`, compiled once per process: the robot's index is traced (`Trainer.robot`), so a
+    Flower process that runs 50 robots of 5 worlds holds 5 programs, not 50."""
+    cfg = wire.config_from_text(text)
+    mine = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, worlds=(world,)))
+    trainer, period = Trainer(mine, fleet=(0, cfg.num_robots)), cfg.fed.period
+    return Program(
+        trainer,
+        hparams_from_config(mine),
+        jax.jit(lambda seeds, hp, i: trainer.robot(i).init_seeds(seeds, hp)),
+        jax.jit(lambda st, hp, e, i: trainer.robot(i).chunk(st, hp, e, period), donate_argnums=0),
+    )
+
+
 class Robot:
-    """Robot `index`'s program of the run `cfg` (one seed: cfg.run.seed), compiled once."""
+    """Robot `index`'s program of the run `cfg` (one seed: cfg.run.seed), compiled once per world."""
 
     def __init__(self, cfg: Config, index: int):
         check(cfg)
         if not 0 <= index < cfg.num_robots:
             raise FleetError(f"partition-id: robot {index} of a run of {cfg.num_robots} (env.worlds)")
-        mine = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, worlds=(cfg.env.worlds[index],)))
         self.cfg, self.index = cfg, index
-        self.trainer = Trainer(mine, fleet=(index, cfg.num_robots))
-        self.hp = hparams_from_config(mine)
-        self._chunk = self.trainer.compiled_chunk(cfg.fed.period)
+        self._program = program(wire.config_text(cfg), cfg.env.worlds[index])
+        self.trainer, self.hp = self._program.trainer.robot(index), self._program.hp
 
     def init(self):
         """The robot's initial state, stacked over the run's one seed."""
-        return self.trainer.init_seeds(jnp.asarray([self.cfg.run.seed]), self.hp)
+        return self._program.init(jnp.asarray([self.cfg.run.seed]), self.hp, jnp.int32(self.index))
 
     @cached_property
     def template(self):
@@ -82,7 +108,7 @@ class Robot:
     def train(self, states, round_index: int):
         """fed.period episodes from episode round_index * fed.period: (states, metrics [1, E, ...])."""
         first = jnp.int32(round_index * self.cfg.fed.period)
-        return self._chunk(states, self.hp, first)
+        return self._program.chunk(states, self.hp, first, jnp.int32(self.index))
 
     def sent(self, states) -> dict[str, np.ndarray]:
         """What the robot sends (`federation.sent`): its shared fields ("shared…" paths, leaves

@@ -108,6 +108,18 @@ def replicated(mesh: Mesh) -> NamedSharding:
     return NamedSharding(mesh, P())
 
 
+def jit_chunk(fn, mesh: Mesh, states, hp):
+    """jit of a chunk `fn(states, hp, first_episode)` placed on `mesh` (`Trainer.compiled_chunk`):
+    the states (donated) keep their placement, the metrics come back replicated."""
+    st, rep = state_shardings(states, mesh), replicated(mesh)
+    return jax.jit(fn, donate_argnums=0, in_shardings=(st, seed_shardings(hp, mesh), rep), out_shardings=(st, rep))
+
+
+def init_placed(init, mesh: Mesh, seeds, hp):
+    """init(seeds, hp) created already placed on `mesh` (`Trainer.init_seeds`)."""
+    return jax.jit(init, out_shardings=state_shardings(jax.eval_shape(init, seeds, hp), mesh))(seeds, hp)
+
+
 def put(tree, shardings):
     """Place host or single-device values onto (possibly multi-process) shardings. Every process
     passes the same full values; each keeps only the shards its devices hold."""

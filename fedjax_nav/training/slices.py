@@ -11,10 +11,11 @@ from typing import Callable
 import jax
 
 
-def rows(draw: Callable[[int], jax.Array], per_robot: int, n: int, fleet: tuple[int, int]) -> jax.Array:
+def rows(draw: Callable[[int], jax.Array], per_robot: int, n: int, fleet: tuple) -> jax.Array:
     """Rows of robots first .. first + n - 1 (per_robot rows each) of draw(total * per_robot),
-    (first, total) = fleet; draw(n * per_robot) itself for a whole run (fleet = (0, n))."""
+    (first, total) = fleet; draw(n * per_robot) itself for a whole run (fleet = (0, n)). `first`
+    may be traced: one compiled program then serves every robot of a world (fleet/robot.py)."""
     first, total = fleet
-    if (first, total) == (0, n):
+    if isinstance(first, int) and (first, total) == (0, n):
         return draw(n * per_robot)
-    return draw(total * per_robot)[first * per_robot : (first + n) * per_robot]
+    return jax.lax.dynamic_slice_in_dim(draw(total * per_robot), first * per_robot, n * per_robot)

@@ -32,6 +32,7 @@ Per-step values (`StepMetrics`) are summed in the step scan's carry, then made e
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass
 from functools import partial
@@ -141,6 +142,13 @@ class Trainer:
         for name, value in fields.items():
             object.__setattr__(self, name, value)
 
+    def robot(self, first) -> Trainer:
+        """This program for robots first.. of its run (`fleet`); `first` may be traced (one compiled
+        program for every robot that drives the same rooms, docs/fleet.md)."""
+        twin = copy.copy(self)
+        object.__setattr__(twin, "fleet", (first, self.fleet[1]))
+        return twin
+
     def facts(self) -> Facts:
         """What the host's tables (training.metrics) need of this run."""
         return Facts(
@@ -222,11 +230,9 @@ class Trainer:
         init = jax.vmap(lambda s, h: self.init(jax.random.key(s), h), in_axes=(0, hp_axes(hp)))
         if mesh is None:
             return jax.jit(init)(seeds, hp)  # jit: op-by-op init of the buffers took ~20 s under load
-        from fedjax_nav.training import parallel
+        from fedjax_nav.training.parallel import init_placed
 
-        self.check_mesh(mesh, len(seeds))
-        shardings = parallel.state_shardings(jax.eval_shape(init, seeds, hp), mesh)
-        return jax.jit(init, out_shardings=shardings)(np.asarray(seeds), hp)
+        return self.check_mesh(mesh, len(seeds)) or init_placed(init, mesh, np.asarray(seeds), hp)
 
     # ------------------------------------------------------------------ pieces
 
@@ -424,22 +430,17 @@ class Trainer:
 
         if mesh is None:
             return jax.jit(fn, donate_argnums=0)
-        from fedjax_nav.training import parallel
+        from fedjax_nav.training.parallel import jit_chunk
 
         if states is None or hp is None:
             raise ValueError("compiled_chunk(mesh=...) needs the states and hp templates")
-        self.check_mesh(mesh, states.reward_steps.shape[0])
-        st, rep = parallel.state_shardings(states, mesh), parallel.replicated(mesh)
-        return jax.jit(
-            fn, donate_argnums=0, in_shardings=(st, parallel.seed_shardings(hp, mesh), rep), out_shardings=(st, rep)
-        )
+        return self.check_mesh(mesh, states.reward_steps.shape[0]) or jit_chunk(fn, mesh, states, hp)
 
     def check_mesh(self, mesh, num_seeds: int) -> None:
         """Raise `parallel.ShardingError` if this run cannot be placed on `mesh`."""
-        from fedjax_nav.training import parallel
+        from fedjax_nav.training.parallel import check_placement
 
-        m = self.method
-        parallel.check_placement(mesh, num_seeds, self.num_robots, m.shared_network, m.shared_buffer)
+        check_placement(mesh, num_seeds, self.num_robots, self.method.shared_network, self.method.shared_buffer)
 
     def num_params(self) -> int:
         """Parameters of one agent's SHARED fields (DDPG: actor + critic), what one client sends
