@@ -90,3 +90,32 @@ def test_cli_render_bad_world(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: no-such-world.json: no such world file")
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_a_panel_of_any_room_shape_reads_at_a_glance():
+    """A 5 x 16.6 m map was once drawn 98 x 563 px: each panel's shorter side is now >= 2.6 in,
+    its longer side <= 11 in, at the room's own aspect."""
+    for size in [(5.0, 16.6), (16.6, 5.0), (4.0, 4.0), (40.0, 2.0), (0.5, 30.0)]:
+        w, h = render.panel_inches(size)
+        assert min(w, h) >= 2.6 - 1e-9 or max(w, h) == pytest.approx(11.0)
+        assert max(w, h) <= 11.0 + 1e-9
+        assert w / h == pytest.approx(size[0] / size[1])
+    assert render.panel_inches((5.0, 16.6))[0] >= 2.6
+
+
+def test_a_tall_world_is_drawn_wide_enough(tmp_path):
+    import json
+
+    from matplotlib.image import imread
+
+    tall = {
+        "name": "tall",
+        "size": [5.0, 16.6],
+        "boxes": [[0.0, 2.0, 2.0, 0.3, 0.0]],
+        "starts": [[0.0, -7.0, 1.57]],
+        "goals": [[0.0, 7.0]],
+    }
+    (tmp_path / "tall.json").write_text(json.dumps(tall))
+    png = render.render_worlds([str(tmp_path / "tall.json")], out_dir=tmp_path / "out", steps=0)[0]
+    h, w = imread(png).shape[:2]
+    assert w >= 250 and h / w < 16.6 / 5.0 + 0.5, (w, h)

@@ -298,6 +298,27 @@ def _figure(w_in: float, h_in: float):
     return Figure(figsize=(w_in, h_in), layout="constrained")
 
 
+def panel_inches(size, area: float = 13.0, short: float = 2.6, long: float = 11.0) -> tuple[float, float]:
+    """(width, height) in inches of a panel drawing a room of `size` (W, H) m at equal aspect:
+    about `area` square inches, its shorter side at least `short` and its longer side at most
+    `long` (a 5 x 16.6 m map: 2.6 x 8.6 in, not a 1 in wide strip), so that a room of any shape
+    reads at a glance."""
+    W, H = (max(float(v), 1e-3) for v in np.asarray(size, float)[:2])
+    aspect = W / H
+    w, h = math.sqrt(area * aspect), math.sqrt(area / aspect)
+    grow = max(1.0, short / min(w, h))
+    w, h = w * grow, h * grow
+    cut = min(1.0, long / max(w, h))
+    return w * cut, h * cut
+
+
+def wrapped(text: str, width_in: float, fontsize: float = 9.0) -> str:
+    """`text` wrapped to a figure `width_in` inches wide (a title never runs off a narrow figure)."""
+    import textwrap
+
+    return textwrap.fill(text, max(20, int(width_in * 144 / fontsize)))
+
+
 def render_worlds(
     names_or_paths: Sequence[str | Path] | str | Path | None = None,
     out_dir: str | Path = "runs/render",
@@ -335,10 +356,8 @@ def render_worlds(
             k += 1
             name = f"{stem}-{k}"
         used.add(name)
-        W, H = (float(v) for v in np.asarray(world.size))
-        aspect = (W + 0.8) / (H + 0.8)
-        side = 4.4  # the longer side of the plotting area, in inches
-        fig = _figure(side * min(1.0, aspect) + 0.7, side * min(1.0, 1.0 / aspect) + 0.8)
+        w_in, h_in = panel_inches(np.asarray(world.size, float) + 0.8)
+        fig = _figure(w_in + 0.7, h_in + 0.8)
         _draw_one(fig.add_subplot(), world, meta, ep)
         path = out / f"{name}.png"
         fig.savefig(path, dpi=dpi)

@@ -169,9 +169,10 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     agent_colors = [cmap(i / max(A_draw - 1, 1)) if A_draw > 10 else cmap(i % 10) for i in range(A_draw)]
     cols = min(G, 4)
     rows = -(-G // cols)
-    size = np.asarray(ev.world.size, float)
-    side = 3.6
-    fig = _figure(side * cols * min(size[0] / size[1], 1.6), side * rows * min(size[1] / size[0], 1.6) + 0.5)
+    from fedjax_nav.env.render import panel_inches, wrapped
+
+    w_in, h_in = panel_inches(ev.world.size)
+    fig = _figure(w_in * cols, h_in * rows + 0.9)
     axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
     s = ev.summary
     per_goal = {g["goal"]: g for g in s["all_agents"]["per_goal"]}
@@ -189,12 +190,12 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     for ax in axes[G:]:
         ax.set_visible(False)
     n = s["noise"]
-    fig.suptitle(
+    title = (
         f"{s['method']} on {s['world']}: {A_draw} of {A} agent(s) x {K} attempts per goal "
         f"(colour = agent; * goal, x collision, o time-out); noise range {n['range_noise']:g} m, "
-        f"action {n['action_noise']:g}",
-        fontsize=9,
+        f"action {n['action_noise']:g}"
     )
+    fig.suptitle(wrapped(title, w_in * cols), fontsize=9)
     return _save(fig, path, dpi=90)
 
 

@@ -310,7 +310,7 @@ def shared_figure(
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle
 
-    from fedjax_nav.env.render import draw_trajectories, draw_world
+    from fedjax_nav.env.render import draw_trajectories, draw_world, panel_inches
 
     pr = shared_protocol(run_dir, suite, world, attempts, [k], range_noise, action_noise, max_steps)
     first = lambda tree: jax.tree.map(lambda x: x[:1], tree)  # noqa: E731  room 0, agent 0
@@ -318,9 +318,9 @@ def shared_figure(
         pr.program(k, trajectories=True)(first(pr.run.actor_params), first(pr.rooms), pr.keys(seed, k)[:1, :1])
     )
     poses, steps = out_["poses"][0, 0], out_["steps"][0, 0]  # [T + 1, k, 3], [k]
-    fig = Figure(figsize=(5.5, 5.5), layout="constrained")
-    ax = fig.add_subplot()
     room = jax.tree.map(lambda x: x[0], pr.world)
+    fig = Figure(figsize=tuple(1.3 * v for v in panel_inches(room.size)), layout="constrained")
+    ax = fig.add_subplot()
     room = room.replace(
         starts=jnp.zeros_like(room.starts[:1]),
         goals=jnp.zeros_like(room.goals[:1]),
