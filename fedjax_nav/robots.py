@@ -58,7 +58,12 @@ TURTLEBOT3_BURGER = {
     "lidar_offset": -0.032,  # m: model.sdf lidar_joint pose x = -0.032 (behind the wheel axis)
 }
 
-ROBOT_MODELS = {"ideal": IDEAL, "custom": IDEAL, "turtlebot3_burger": TURTLEBOT3_BURGER}
+# The ideal robot whose 24 beams are each the nearest return of its sector of a 360-sample scan
+# (the LDS-01's count), nothing else changed: what the pooling alone does to obstacles thinner
+# than the gap between two ideal rays (docs/clutter.md, "Thin obstacles between the beams").
+POOLED_360 = IDEAL | {"scan_samples": 360}
+
+ROBOT_MODELS = {"ideal": IDEAL, "custom": IDEAL, "turtlebot3_burger": TURTLEBOT3_BURGER, "pooled_360": POOLED_360}
 
 
 def _f(lo=None, hi=None, choices=None, traced=False, doc=""):

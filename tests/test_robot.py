@@ -246,6 +246,9 @@ def test_presets_fill_the_fields_not_given_and_ideal_is_the_default():
     assert from_dict({"robot": {**TURTLEBOT3_BURGER, "model": "turtlebot3_burger"}}).robot == RobotConfig(
         model="turtlebot3_burger"
     )
+    # pooled_360: the ideal robot but for the 360-sample scan pooled to the beams, nothing else
+    pooled = load_config(None, ["robot.model=pooled_360"]).robot
+    assert pooled.enabled and {k: getattr(pooled, k) for k in IDEAL} == IDEAL | {"scan_samples": 360}
     assert {f"robot.{k}" for k in ("accel_lin", "delay_steps", "range_noise", "footprint")} <= set(traced_fields())
     assert not {f"robot.{k}" for k in ("substeps", "scan_samples", "max_delay", "dropout_value")} & set(traced_fields())
 

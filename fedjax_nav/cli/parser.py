@@ -19,6 +19,7 @@ from fedjax_nav.cli.commands import (
     _worlds,
 )
 from fedjax_nav.cli.train import _train
+from fedjax_nav.robots import ROBOT_MODELS
 
 DESCRIPTION = "`fedjax-nav`: the command line. Each command parses its flags and dispatches to a module."
 
@@ -238,7 +239,8 @@ def add_evaluate(sub) -> None:
         "--robot",
         default=None,
         metavar="MODEL",
-        help="evaluate under this robot model (ideal, turtlebot3_burger; default: the run's own); "
+        help=f"evaluate under this robot model ({', '.join(m for m in ROBOT_MODELS if m != 'custom')}; default: "
+        "the run's own); "
         "kept in RUN/eval/<world>-robot-<MODEL>/ (docs/robot.md)",
     )
     p.add_argument(
