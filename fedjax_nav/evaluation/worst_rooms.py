@@ -96,10 +96,13 @@ def kept_evaluation(run_dir, suite: str, folder=None) -> tuple[Path, dict, pd.Da
     return folder, summary, episodes
 
 
-def replay(run_dir, suite: str = "heldout", rooms: int = ROOMS, attempts: int = 1, folder=None) -> WorstRooms:
+def replay(
+    run_dir, suite: str = "heldout", rooms: int = ROOMS, attempts: int = 1, folder=None, choose=None
+) -> WorstRooms:
     """The `rooms` worst rooms (`rank_rooms`) of the kept evaluation of `run_dir` on `suite`
     (`kept_evaluation`), their episodes replayed with its protocol: every agent to every goal, the
-    first `attempts` of its attempts (at most the evaluation's)."""
+    first `attempts` of its attempts (at most the evaluation's). `choose(episodes)`: other rooms,
+    `rank_rooms`' rows in the order wanted (e.g. those with the most failed detours)."""
     check_counts(attempts)
     if not (isinstance(rooms, (int, np.integer)) and rooms >= 1):
         raise EvalError(f"rooms: must be an integer >= 1, got {rooms!r}")
@@ -115,7 +118,7 @@ def replay(run_dir, suite: str = "heldout", rooms: int = ROOMS, attempts: int = 
             f"{folder / rundir.SUITE_JSON}: an evaluation of {s.get('rooms')} rooms x {s.get('agents')} agents, "
             f"but suite {suite!r} has {R} rooms and the run {A} agents; evaluate the suite again"
         )
-    ranked = rank_rooms(episodes).head(int(rooms))
+    ranked = (rank_rooms(episodes) if choose is None else choose(episodes)).head(int(rooms))
     K = int(s["attempts_per_agent"])
     asked = int(s.get("attempts_requested", K * run.n_nets // run.num_robots))
     noise = s["noise"]
