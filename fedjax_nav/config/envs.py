@@ -42,6 +42,7 @@ def env_settings(cfg: Config, mode: str, noise: bool | None = None, episode_leng
         "mode": mode,
         "collision_test": e.collision_test,
         **settings,
+        **({"plan": True, "plan_cells": e.plan_cells} if e.plan else {}),
     }
 
 

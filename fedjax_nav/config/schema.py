@@ -148,6 +148,14 @@ class EnvConfig:
         "goal, seeing the others in its lidar; a contact of two robots is a collision of both "
         "(static; false = every robot alone; docs/shared_rooms.md)",
     )
+    # A global plan on the known map (docs/planning.md). The default gives today's mapless runs.
+    plan: bool = _f(
+        False,
+        doc="give the policy the waypoint of a shortest safe path on the room's map in place of the goal, "
+        "and the goal's distance as one more input (static; docs/planning.md)",
+    )
+    plan_cells: int = _f(64, lo=2, hi=1024, doc="env.plan: grid cells per side of the room (static)")
+    plan_lookahead: float = _f(1.0, lo=0.0, hi=1e4, traced=True, doc="env.plan: m down the path to the waypoint")
 
 
 @dataclass(frozen=True)

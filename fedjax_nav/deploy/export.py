@@ -181,6 +181,10 @@ def export_run(
     cfg = run.cfg
     from fedjax_nav.learner_table import get as learner_row
 
+    if cfg.env.plan:  # the exported observation has no waypoint yet (docs/planning.md, "Not yet")
+        raise ExportError(
+            f"{run.run_dir}: env.plan: true; export does not build the plan's waypoint yet (docs/planning.md)"
+        )
     kind = actor_kind(cfg)
     if kind not in WEIGHTS:
         raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports the actors {', '.join(WEIGHTS)}")

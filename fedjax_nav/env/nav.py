@@ -7,7 +7,9 @@ different playgrounds, and again over seeds.
 
 Observation, f32[num_beams + 4]: the ranges (clipped at `max_range`), the goal distance `d` (m),
 the goal bearing relative to the heading (rad, in [-pi, pi]), and the previous action in the
-network's units (v / v_max in [0, 1], omega / omega_max in [-1, 1]).
+network's units (v / v_max in [0, 1], omega / omega_max in [-1, 1]). With `NavEnv(plan=True)`
+(docs/planning.md) the distance and bearing are the plan's waypoint's, and the goal's distance
+follows as one more entry: f32[num_beams + 5].
 
 Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, clipped to the box.
 """
@@ -25,6 +27,7 @@ import numpy as np
 from flax import struct
 
 from fedjax_nav import worlds as _worlds
+from fedjax_nav.env import plan as gp
 from fedjax_nav.env import robot as rm
 from fedjax_nav.env.geometry import lidar, nearest_distance
 from fedjax_nav.env.spaces import Box
@@ -61,6 +64,7 @@ class EnvParams:
     dropout: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # probability per sample
     footprint: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = collision_distance
     lidar_offset: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m ahead of the centre
+    plan_lookahead: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # m; NavEnv(plan=True) only
 
 
 @struct.dataclass
@@ -75,6 +79,7 @@ class EnvState:
     # (robot=True: [starts, scan_samples], the true dense scan from the lidar's position)
     vel: jax.Array | None = None  # f32[2] executed (v, omega) in m/s, rad/s; robot=True only
     cmd_queue: jax.Array | None = None  # f32[max_delay, 2] past commands, newest first; max_delay > 0 only
+    plan: jax.Array | None = None  # f32[plan_cells, plan_cells] m to the goal (env.plan.py), cast at reset; plan only
 
 
 class NavEnv:
@@ -97,6 +102,13 @@ class NavEnv:
     dense scan pooled to `num_beams` by sector minimum; `dropout_value` ("max" or "zero") is what a
     dropped sample reads. robot=False (the default) is the thesis's ideal robot, and its program
     is exactly the one before the robot model existed.
+
+    plan=True gives the policy a global plan on the known map (docs/planning.md): at `reset` the
+    distance field to the goal on a `plan_cells` x `plan_cells` grid of the room inflated by the
+    collision radius (`env/plan.py`), kept in the state for the episode; `observe` gives the
+    distance and bearing of the waypoint `EnvParams.plan_lookahead` m down the field in place of
+    the goal's, and the goal's distance as one more entry. plan=False (the default) is the
+    mapless program as it was.
     """
 
     def __init__(
@@ -112,6 +124,8 @@ class NavEnv:
         max_delay: int = 0,
         scan_samples: int = 0,
         dropout_value: str = "max",
+        plan: bool = False,
+        plan_cells: int = 64,
     ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -132,10 +146,14 @@ class NavEnv:
         self.max_delay = int(max_delay)
         self.scan_samples = int(scan_samples) or self.num_beams
         self.dropout_value = dropout_value
+        if int(plan_cells) < 2:
+            raise ValueError(f"plan_cells must be >= 2, got {plan_cells!r}")
+        self.plan = bool(plan)
+        self.plan_cells = int(plan_cells)
 
     @property
     def obs_size(self) -> int:
-        return self.num_beams + 4
+        return self.num_beams + 4 + int(self.plan)
 
     action_size = 2
 
@@ -171,12 +189,17 @@ class NavEnv:
         elif self.noise:
             ranges = ranges + params.range_noise * jax.random.normal(key, ranges.shape)
             ranges = jnp.clip(ranges, 0.0, self.max_range)
-        rel = state.goal - state.pose[:2]
+        target, dist = state.goal, state.dist
+        if self.plan:  # the waypoint in place of the goal; the goal's distance as the last entry
+            target = gp.waypoint(state.plan, params.world.size, state.goal, state.pose[:2], params.plan_lookahead)
+            dist = jnp.linalg.norm(target - state.pose[:2])
+        rel = target - state.pose[:2]
         bearing = jnp.arctan2(rel[1], rel[0]) - state.pose[2]
         bearing = jnp.arctan2(jnp.sin(bearing), jnp.cos(bearing))
-        return jnp.concatenate([ranges, jnp.stack([state.dist, bearing]), state.prev_action])
+        extra = [state.dist[None]] if self.plan else []
+        return jnp.concatenate([ranges, jnp.stack([dist, bearing]), state.prev_action, *extra])
 
-    def _start(self, key: jax.Array, params: EnvParams, t: jax.Array, start_ranges: jax.Array) -> EnvState:
+    def _start(self, key: jax.Array, params: EnvParams, t: jax.Array, start_ranges: jax.Array, plan=None) -> EnvState:
         w = params.world
         idx = jnp.where(params.random_starts, jax.random.randint(key, (), 0, w.num_starts), 0)
         pose = w.starts[idx]
@@ -191,6 +214,7 @@ class NavEnv:
             start_ranges=start_ranges,
             vel=jnp.zeros(2, jnp.float32) if self.robot else None,
             cmd_queue=jnp.zeros((self.max_delay, 2), jnp.float32) if self.max_delay else None,
+            plan=plan,
         )
 
     # ------------------------------------------------------------------ API
@@ -201,6 +225,9 @@ class NavEnv:
         k_start, k_obs = jax.random.split(key)
         start_ranges = jax.vmap(self.ranges, in_axes=(0, None))(params.world.starts, params)
         state = self._start(k_start, params, jnp.int32(0), start_ranges)
+        if self.plan:  # the goal is the episode's: a respawn inside it keeps the field
+            field = gp.goal_field(params.world, state.goal, self.radius(params), params.goal_radius, self.plan_cells)
+            state = state.replace(plan=field)
         return self.observe(k_obs, state, start_ranges[state.start_index], params), state
 
     def step(
@@ -270,7 +297,7 @@ class NavEnv:
         final_obs = self.observe(k_obs, moved, ranges, params)
         obs = final_obs
         if self.mode == "learn":
-            start = self._start(k_reset, params, moved.t, state.start_ranges)
+            start = self._start(k_reset, params, moved.t, state.start_ranges, state.plan)
             moved = jax.tree.map(lambda r, s: jnp.where(terminated, r, s), start, moved)
             scan = state.start_ranges[start.start_index]
             if others is not None:  # the start's cached scan, with the robots where they are now
@@ -322,9 +349,10 @@ class NavEnv:
         return make_params(_default_world())
 
     def observation_space(self, params: EnvParams | None = None) -> Box:
-        """Box f32[num_beams + 4]: ranges in [0, max_range] m, goal distance in [0, dmax] m,
-        bearing in [-pi, pi] rad, previous action in [0, 1] x [-1, 1]. dmax = the room's diagonal
-        plus the longest drive of an episode (v_max dt episode_length); for a stacked World the
+        """Box f32[obs_size]: ranges in [0, max_range] m, goal (plan: waypoint) distance in
+        [0, dmax] m, bearing in [-pi, pi] rad, previous action in [0, 1] x [-1, 1] (plan: then the
+        goal's distance in [0, dmax] m). dmax = the room's diagonal plus the longest drive of an
+        episode (v_max dt episode_length); for a stacked World the
         largest over its playgrounds. The bounds are jnp arrays (traced params work too)."""
         params = self.default_params if params is None else params
         size = jnp.asarray(params.world.size, jnp.float32)
@@ -332,8 +360,11 @@ class NavEnv:
         dmax = (diag + jnp.max(params.v_max * params.dt) * self.episode_length).astype(jnp.float32)
         pi = jnp.float32(jnp.pi)
         zero, one = jnp.float32(0.0), jnp.float32(1.0)
-        low = jnp.concatenate([jnp.zeros(self.num_beams, jnp.float32), jnp.stack([zero, -pi, zero, -one])])
-        high = jnp.concatenate([jnp.full(self.num_beams, self.max_range, jnp.float32), jnp.stack([dmax, pi, one, one])])
+        low, high = [zero, -pi, zero, -one, zero], [dmax, pi, one, one, dmax]  # plan: the goal's distance last
+        low = jnp.concatenate([jnp.zeros(self.num_beams, jnp.float32), jnp.stack(low[: 4 + self.plan])])
+        high = jnp.concatenate(
+            [jnp.full(self.num_beams, self.max_range, jnp.float32), jnp.stack(high[: 4 + self.plan])]
+        )
         return Box(low, high, (self.obs_size,), jnp.float32)
 
     def action_space(self, params: EnvParams | None = None) -> Box:

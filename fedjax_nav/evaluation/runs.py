@@ -142,7 +142,7 @@ def load_run(run_dir: str | Path) -> RunAgents:
     n_nets = 1 if method.shared_network else n_robots
     section = learner_row(cfg.learner).actor_section  # where the actor's hidden and depth are
     d = getattr(cfg, section)
-    obs_size = _Env(cfg.env.num_beams).obs_size
+    obs_size = _Env(cfg.env.num_beams, plan=cfg.env.plan).obs_size
     exp_flat = _flat_shapes(_expected_actor(cfg, obs_size))
     if set(exp_flat) != set(got_shapes):
         raise EvalError(

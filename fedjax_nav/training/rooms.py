@@ -102,6 +102,8 @@ class TrainRooms:
         fixed = [worlds.load(w) for w in e.worlds]
         if self.shared:
             check_shared(e, fixed, n)
+        if e.plan and e.rooms != "procedural" and e.placement == "fixed":
+            check_plan(cfg, fixed)
         if not self.procedural:
             self.world = _per_env(worlds.load_many(e.worlds), per)  # N = 1: exactly the fixed program's World
             if self.shared and not self.random_placement:  # robot i: the room's start i and goal i
@@ -353,3 +355,26 @@ def check_shared(e, fixed: list, robots: int) -> None:
                 "robots in a shared room (env.shared_rooms); give a start and a goal per robot, "
                 "or env.placement: random"
             )
+
+
+def check_plan(cfg, fixed: list) -> None:
+    """env.plan (docs/planning.md): every start row of each `env.worlds` room reaches the goal it
+    drives to (goal 0; in a shared room robot i's start i its goal i) on the plan's grid, inflated
+    by the robot's collision radius; else `WorldError`, one line naming the world and the field."""
+    from fedjax_nav.env import plan
+
+    e, r = cfg.env, cfg.robot
+    radius = r.footprint if r.enabled and r.footprint > 0 else e.collision_distance
+    reach = jax.jit(plan.reachable, static_argnums=4)
+    for name, w in dict(zip(e.worlds, fixed)).items():
+        # (goal row, the start rows driving to it)
+        pairs = [(i, [i]) for i in range(cfg.num_robots)] if e.shared_rooms else [(0, range(int(w.num_starts)))]
+        for g, rows in pairs:
+            ok = np.asarray(reach(w, w.goals[g], radius, e.goal_radius, e.plan_cells))
+            for i in (i for i in rows if not ok[i]):
+                raise WorldError(
+                    f"env.worlds: '{name}': start {i} {np.round(np.asarray(w.starts[i, :2]), 2).tolist()} cannot "
+                    f"reach goal {g} {np.round(np.asarray(w.goals[g]), 2).tolist()} on the plan's grid (env.plan: "
+                    f"true, env.plan_cells={e.plan_cells}, clearance {radius:g} m); give a start that can, or "
+                    "env.plan: false"
+                )

@@ -1,0 +1,214 @@
+"""The global plan (docs/planning.md, `fedjax_nav/env/plan.py`): the distance field against an
+independent float64 Dijkstra (scipy) on a thesis world and procedural maze and office rooms, the
+waypoint's descent and clearance, the observation with the plan on, a tiny training run that
+resumes and is evaluated, and the refusal of a world whose start cannot reach its goal."""
+
+import io
+import json
+from contextlib import redirect_stderr, redirect_stdout
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.sparse.csgraph import dijkstra
+
+from fedjax_nav import cli, worlds
+from fedjax_nav.config import load_config
+from fedjax_nav.config.envs import env_settings
+from fedjax_nav.env import make, nearest_distance, plan
+from fedjax_nav.evaluation.paths import _graph
+from fedjax_nav.worlds import point_segment_distance_np
+from fedjax_nav.worlds.procedural import generate
+from fedjax_nav.worlds.rooms import make_spec
+
+CELLS = 48
+D_C, D_G = 0.25, 0.5
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    return {
+        "train-2": worlds.load("train-2"),
+        "maze": generate(jax.random.key(3), make_spec("maze")),
+        "office": generate(jax.random.key(5), make_spec("office")),
+    }
+
+
+@pytest.fixture(scope="module")
+def fields():
+    """jit(free, seeds, res, field) of one room (compiled once per room shape)."""
+
+    def one(world, goal):
+        free = plan.free_cells(world, D_C, CELLS)
+        seeds = plan.goal_cells(free, world.size, goal, D_G)
+        res = plan.grid(world.size, CELLS)[0]
+        field, passes = plan.distance_field(free, seeds, res)
+        return free, seeds, res, field, passes
+
+    return jax.jit(one)
+
+
+def _free_f64(world) -> tuple[np.ndarray, np.ndarray]:
+    """(free, margin): the grid's free cells in float64 from the world's rows, and each centre's
+    distance to the threshold (cells within float32 rounding of it may differ)."""
+    size = np.asarray(world.size, np.float64)
+    res = size.max() / CELLS
+    xs = res * (np.arange(CELLS) + 0.5) - size[0] / 2
+    ys = res * (np.arange(CELLS) + 0.5) - size[1] / 2
+    pts = np.stack(np.meshgrid(xs, ys), axis=-1)
+    segs = np.asarray(world.segments, np.float64)
+    segs = segs[np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) > 0]
+    d = point_segment_distance_np(pts, segs).min(-1)
+    for cx, cy, r in np.asarray(world.circles, np.float64):
+        if r > 0:
+            d = np.minimum(d, np.hypot(pts[..., 0] - cx, pts[..., 1] - cy) - r)
+    inside = (np.abs(xs)[None, :] < size[0] / 2) & (np.abs(ys)[:, None] < size[1] / 2)
+    return inside & (d >= D_C), np.abs(d - D_C)
+
+
+@pytest.mark.parametrize("name", ["train-2", "maze", "office"])
+def test_the_field_is_dijkstras_on_the_inflated_grid(rooms, fields, name):
+    world = rooms[name]
+    free, seeds, res, field, passes = (np.asarray(a) for a in fields(world, world.goals[0]))
+    ref_free, margin = _free_f64(world)
+    assert ((free == ref_free) | (margin < 1e-5)).all()
+    src = np.flatnonzero(seeds.ravel())
+    assert src.size, "the goal has free cells"
+    ref = dijkstra(_graph(free, float(res)), directed=False, indices=src, min_only=True).reshape(free.shape)
+    reach = np.isfinite(ref)
+    assert (np.isfinite(field) == reach).all()
+    np.testing.assert_allclose(field[reach], ref[reach], rtol=2e-6, atol=1e-5)
+    assert reach.sum() > 0.5 * free.sum() and 1 <= int(passes) < 20
+
+
+@pytest.mark.parametrize("name", ["maze", "office"])
+def test_the_waypoint_is_down_the_field_and_the_way_to_it_is_clear(rooms, fields, name):
+    world = rooms[name]
+    goal = world.goals[0]
+    _, _, res, field, _ = fields(world, goal)
+    res, f = float(res), np.asarray(field)
+    look = 1.0
+    iy, ix = np.nonzero(np.isfinite(f) & (f > look + 2 * res))
+    pick = np.random.default_rng(0).choice(len(iy), 64, replace=False)
+    _, xs, ys = (np.asarray(a) for a in plan.grid(world.size, CELLS))
+    jitter = np.random.default_rng(1).uniform(-0.4, 0.4, (64, 2)) * res
+    xy = np.stack([xs[ix[pick]], ys[iy[pick]]], axis=1) + jitter
+    wp = np.asarray(
+        jax.jit(jax.vmap(plan.waypoint, in_axes=(None, None, None, 0, None)))(field, world.size, goal, xy, look)
+    )
+    cell = jax.vmap(lambda p: jnp.stack(plan.cell_of(p, world.size, CELLS)))(jnp.asarray(xy))
+    wcell = jax.vmap(lambda p: jnp.stack(plan.cell_of(p, world.size, CELLS)))(jnp.asarray(wp))
+    here, there = f[tuple(np.asarray(cell).T)], f[tuple(np.asarray(wcell).T)]
+    walked = here - there  # down the field; less than the lookahead where a corner cuts the sight
+    assert (walked >= 0).all() and (walked <= look + 1.5 * res + 1e-4).all(), walked
+    assert np.mean(walked > 0) > 0.9 and np.mean(walked >= look - 1e-4) > 0.5, walked
+    # the straight way from the robot to its waypoint keeps nearly D_c (a cell's diagonal less)
+    t = np.linspace(0.0, 1.0, 41)[:, None, None]
+    pts = jnp.asarray((xy[None] + t * (wp - xy)[None]).reshape(-1, 2), jnp.float32)
+    clear = np.asarray(jax.vmap(lambda p: nearest_distance(world.segments, p, world.circles))(pts))
+    assert clear.min() >= D_C - res * np.sqrt(2) / 2 - 1e-4, clear.min()
+
+
+def test_the_waypoint_is_the_goal_when_near_cut_off_or_started_in_a_wall():
+    world = worlds.load("train-2")
+    size, goal = world.size, world.goals[0]
+    field = plan.goal_field(world, goal, D_C, D_G, CELLS)
+    wp = jax.jit(plan.waypoint)
+    near = goal + jnp.array([0.6, 0.0])
+    assert np.allclose(wp(field, size, goal, near, 1.0), goal)
+    cut = jnp.full_like(field, jnp.inf)
+    assert np.allclose(wp(cut, size, goal, jnp.array([0.0, 0.0]), 1.0), goal)
+    # a robot near the wall x = W/2 (clearance 0.24 m): its cell is not free, the walk starts from a free neighbour
+    xy = jnp.array([float(size[0]) / 2 - 0.24, 0.0])
+    iy, ix = plan.cell_of(xy, size, CELLS)
+    assert not np.isfinite(field[iy, ix])
+    got = np.asarray(wp(field, size, goal, xy, 1.0))
+    assert np.isfinite(got).all() and not np.allclose(got, goal)
+    assert float(nearest_distance(world.segments, jnp.asarray(got), world.circles)) >= D_C
+    assert 0.5 < np.linalg.norm(got - np.asarray(xy)) < 1.3
+
+
+def test_observation_with_the_plan_on():
+    env, params = make("Nav-v0", world="eval", plan=True, plan_cells=CELLS, episode_length=8)
+    off, _ = make("Nav-v0", world="eval", episode_length=8)
+    assert env.obs_size == off.obs_size + 1 == 29
+    obs, st = jax.jit(env.reset)(jax.random.key(0), params)
+    assert st.plan.shape == (CELLS, CELLS) and obs.shape == (29,)
+    assert env.observation_space(params).contains(obs)
+    assert np.isclose(obs[-1], st.dist)  # the goal's distance, last
+    wp = plan.waypoint(st.plan, params.world.size, st.goal, st.pose[:2], params.plan_lookahead)
+    assert np.isclose(obs[24], np.linalg.norm(np.asarray(wp) - np.asarray(st.pose[:2])), atol=1e-5)
+    # a respawn inside the episode keeps the field (learn mode: drive into the wall)
+    step = jax.jit(env.step)
+    s = st
+    for k in range(8):
+        _, s, _, _, _, _ = step(jax.random.key(k), s, jnp.array([1.0, 0.0]), params)
+    assert np.array_equal(np.asarray(s.plan), np.asarray(st.plan))
+
+
+def test_the_config_turns_it_on_and_off():
+    cfg = load_config("thesis/flddpg")
+    assert "plan" not in env_settings(cfg, "learn")  # off: the mapless settings as they were
+    on = load_config("thesis/flddpg", ["env.plan=true", "env.plan_cells=32", "env.plan_lookahead=0.5"])
+    s = env_settings(on, "learn")
+    assert s["plan"] is True and s["plan_cells"] == 32
+
+
+TINY = [
+    "env.episode_length=16",
+    "run.chunk_episodes=1",
+    "offpolicy.batch_size=8",
+    "offpolicy.hidden=8",
+    "offpolicy.depth=1",
+    "run.checkpoint_every=1",
+    "fed.period=1",
+    "env.worlds=[train-0,train-2]",
+    "env.plan=true",
+    f"env.plan_cells={CELLS}",
+]
+
+
+def _cli(argv) -> tuple[int, str]:
+    err, out = io.StringIO(), io.StringIO()
+    with redirect_stderr(err), redirect_stdout(out):
+        try:
+            rc = cli.main([str(a) for a in argv])
+        except SystemExit as e:
+            rc = e.code
+    return rc, err.getvalue()
+
+
+def test_a_tiny_run_with_the_plan_trains_resumes_and_evaluates(tmp_path):
+    out = tmp_path / "run"
+    sets = [a for s in TINY for a in ("--set", s)]
+    rc, err = _cli(["train", "--config", "thesis/flddpg", "--episodes", 2, *sets, "--out", out, "--quiet"])
+    assert rc == 0, err[-2000:]
+    rc, err = _cli(["train", "--resume", out, "--episodes", 3, "--allow-config-change", "--quiet"])
+    assert rc == 0, err[-2000:]
+    assert len(pd.read_csv(out / "metrics.csv")) == 3 * 2  # episodes x robots
+    rc, err = _cli(["evaluate", out, "--world", "train-2", "--attempts", 1, "--max-steps", 16])
+    assert rc == 0, err[-2000:]
+    got = json.loads((out / "eval" / "train-2" / "eval.json").read_text())
+    assert got and "Traceback" not in err
+
+
+def test_a_world_whose_start_cannot_reach_its_goal_is_refused_in_one_line(tmp_path):
+    walled = tmp_path / "walled.json"
+    walled.write_text(
+        json.dumps(
+            {
+                "size": [4.0, 2.0],
+                "segments": [[0.0, -1.0, 0.0, 1.0]],  # a wall across the room
+                "starts": [[-1.2, 0.0, 0.0]],
+                "goals": [[1.2, 0.0]],
+            }
+        )
+    )
+    argv = ["train", "--config", "thesis/flddpg", "--episodes", 2, "--out", tmp_path / "run", "--quiet"]
+    sets = ["env.episode_length=8", f"env.worlds=[{walled}]", "env.plan=true", "run.chunk_episodes=1"]
+    rc, err = _cli(argv + [a for s in sets for a in ("--set", s)])
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), err[-1500:]
+    assert "walled.json" in lines[0] and "env.plan" in lines[0] and "start 0" in lines[0]
