@@ -212,3 +212,36 @@ def test_a_world_whose_start_cannot_reach_its_goal_is_refused_in_one_line(tmp_pa
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert rc == 2 and len(lines) == 1 and lines[0].startswith("error: "), err[-1500:]
     assert "walled.json" in lines[0] and "env.plan" in lines[0] and "start 0" in lines[0]
+
+
+def test_each_robot_of_a_shared_room_has_its_own_field():
+    from fedjax_nav.env import NavEnv, make_params, shared
+
+    env = NavEnv(episode_length=8, plan=True, plan_cells=CELLS)
+    fleet = shared.fixed_fleet(worlds.load("eval-crossing"), 2)
+    params = jax.vmap(make_params)(fleet)
+    keys = jax.random.split(jax.random.key(0), 2)
+    obs, st = jax.jit(jax.vmap(env.reset))(keys, params)
+    assert obs.shape == (2, 29) and not np.array_equal(np.asarray(st.plan[0]), np.asarray(st.plan[1]))
+    obs, st, *_ = jax.jit(shared.fleet_step(env, np.ones(2, bool), 1))(keys, st, jnp.ones((2, 2)) * 0.5, params)
+    assert np.isfinite(np.asarray(obs)).all()
+
+
+def test_the_gym_adapters_observation_space_comes_from_the_env():
+    from fedjax_nav.env.gym_env import NavGymEnv
+
+    """(NavVectorEnv runs the same gym_task; its space is this one's, batched.)"""
+    g = NavGymEnv("train-2", plan=True, plan_cells=CELLS, plan_lookahead=0.8, episode_length=4)
+    o, _ = g.reset(seed=0)
+    assert o.shape == (29,) and g.observation_space.contains(o)
+    o, *_ = g.step(np.array([0.5, 0.0], np.float32))
+    assert g.observation_space.contains(o)
+
+
+def test_the_brax_adapter_with_the_plan_on():
+    brax_env = pytest.importorskip("fedjax_nav.env.brax_env")
+    b = brax_env.BraxNavEnv("train-2", plan=True, plan_cells=CELLS)
+    assert b.observation_size == 29
+    s = jax.jit(b.reset)(jax.random.key(0))
+    s = jax.jit(b.step)(s, jnp.zeros(2))
+    assert s.obs.shape == (29,) and np.isfinite(np.asarray(s.obs)).all()

@@ -131,6 +131,8 @@ class BraxNavEnv(Env):
       max_range: lidar range in m, as in `NavEnv`.
       collision_test: "exact" or "lidar", as in `NavEnv`.
       noise: sensor and actuation noise on, as in `NavEnv`.
+      plan, plan_cells: the global plan's waypoint in the observation, as in `NavEnv`
+        (docs/planning.md; its lookahead is the `EnvParams` field `plan_lookahead`).
       **param_overrides: `EnvParams` fields (e.g. `goal_index=1`, `random_starts=True`,
         `v_max=0.3`), scalars or arrays with one entry per playground.
     """
@@ -145,6 +147,8 @@ class BraxNavEnv(Env):
         max_range: float = 3.5,
         collision_test: str = "exact",
         noise: bool = False,
+        plan: bool = False,
+        plan_cells: int = 64,
         **param_overrides: Any,
     ):
         world = _as_stacked_world(worlds)
@@ -164,6 +168,8 @@ class BraxNavEnv(Env):
             mode="eval",
             collision_test=collision_test,
             noise=noise,
+            plan=plan,
+            plan_cells=plan_cells,
         )
         self.params: EnvParams = make_params(world, **param_overrides)  # leaves [P, ...]
 

@@ -7,7 +7,9 @@ the host once. For many environments at once use the vmap vector env (`gym_vecto
 `gymnasium.make_vec(ENV_ID, n)` builds by default.
 
 - observation: Box(num_beams + 4,) float32, as NavEnv's: ranges in [0, max_range], goal distance
-  (m, >= 0), goal bearing in [-pi, pi], previous action in the network's units.
+  (m, >= 0), goal bearing in [-pi, pi], previous action in the network's units. `plan=True`
+  (docs/planning.md): Box(num_beams + 5,), the waypoint's distance and bearing for the goal's,
+  the goal's distance last.
 - action: Box([0, -1], [1, 1]) float32, (v / v_max, omega / omega_max), the actor's output units.
 - `terminated`: goal reached or collision (nothing is reset inside the env: the caller calls
   `reset`); `truncated`: `episode_length` steps without terminating. Never both.

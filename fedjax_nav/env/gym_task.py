@@ -56,11 +56,20 @@ class TaskSpec:
     placement: str = "world"
     rooms: str = "world"
     room: RoomSpec | None = None  # rooms="procedural" only
+    plan: bool = False  # the global plan's waypoint in the observation (NavEnv's, docs/planning.md)
+    plan_cells: int = 64
 
     @property
     def nav(self) -> NavEnv:
         return NavEnv(
-            self.num_beams, self.max_range, self.episode_length, "eval", self.collision_test, noise=self.noise
+            self.num_beams,
+            self.max_range,
+            self.episode_length,
+            "eval",
+            self.collision_test,
+            noise=self.noise,
+            plan=self.plan,
+            plan_cells=self.plan_cells,
         )
 
 
@@ -76,10 +85,14 @@ def make_task(
     rooms: str = "world",
     room_family: str = "mixture",
     room_spec: dict | None = None,
+    plan: bool = False,
+    plan_cells: int = 64,
     **param_overrides: Any,
 ) -> tuple[TaskSpec, EnvParams, str]:
     """(spec, base params, world name). `world` (default "train-0") is a shipped name or a world
     file; not with rooms="procedural". `room_spec`: RoomSpec overrides ({"cylinders_max": 4}).
+    `plan`, `plan_cells`: NavEnv's global plan (docs/planning.md; its lookahead is the EnvParams
+    field `plan_lookahead`).
     Other keyword arguments are EnvParams fields (random_starts, goal_index, v_max, ...)."""
     if placement not in PLACEMENTS:
         raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
@@ -103,7 +116,16 @@ def make_task(
         name = "train-0" if world is None else str(world)
         world = worlds.load(name)
     spec = TaskSpec(
-        int(num_beams), float(max_range), int(episode_length), collision_test, bool(noise), placement, rooms, room
+        int(num_beams),
+        float(max_range),
+        int(episode_length),
+        collision_test,
+        bool(noise),
+        placement,
+        rooms,
+        room,
+        bool(plan),
+        int(plan_cells),
     )
     return spec, make_params(world, **param_overrides), name
 
@@ -164,7 +186,7 @@ def _clip_bearing(spec: TaskSpec, obs: jax.Array) -> jax.Array:
 
 
 def reset(spec: TaskSpec, key: jax.Array, base: EnvParams) -> tuple[jax.Array, EnvState, EnvParams, jax.Array]:
-    """A new episode: (obs f32[num_beams + 4], state, this episode's params, the key for the
+    """A new episode: (obs f32[obs_size], state, this episode's params, the key for the
     next call). The params (room, start, goal) are `base` unless placement or rooms draw them."""
     k, k_next = jax.random.split(key)
     params = base
