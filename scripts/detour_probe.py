@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     if a.csv:
         table.to_csv(a.csv, index=False)
     if a.figure:
-        figures.room_trajectories(replayed, a.figure)
+        figures.room_trajectories(replayed, a.figure, chosen="with the most failed detours")
     print(f"python scripts/detour_probe.py {a.run} --suite {a.suite} --rooms {a.rooms}")
     print(md_table(detours.summary(table).round(3)))
     return 0

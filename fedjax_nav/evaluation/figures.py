@@ -199,11 +199,11 @@ def trajectories(ev, path: str | Path, max_agents: int | None = None) -> Path:
     return _save(fig, path, dpi=90)
 
 
-def room_trajectories(w, path: str | Path, max_agents: int | None = None) -> Path:
+def room_trajectories(w, path: str | Path, max_agents: int | None = None, chosen: str = "of lowest success") -> Path:
     """One panel per room of `w` (a `worst_rooms.WorstRooms`): the room and every agent's attempts
     to each of its goals, a colour per goal (* goal reached, x collision, o time-out), titled with
     the room's family, room seed and its success, collision and time-out rates in the evaluation.
-    max_agents draws only the first agents (default all)."""
+    max_agents draws only the first agents (default all); `chosen` says how the rooms were chosen."""
     from matplotlib.lines import Line2D
 
     n, A, G, K = w.success.shape
@@ -230,7 +230,7 @@ def room_trajectories(w, path: str | Path, max_agents: int | None = None) -> Pat
     fig.legend(handles=goals, loc="outside lower center", ncol=len(goals), fontsize=8, title="colour = goal")
     s = w.summary
     fig.suptitle(
-        f"{s['method']} on suite '{s['suite']}': the {n} rooms of lowest success of {s['rooms']} (rates of the "
+        f"{s['method']} on suite '{s['suite']}': the {n} rooms {chosen} of {s['rooms']} (rates of the "
         f"evaluation: {s['attempts_per_agent']} attempt(s), T = {s['max_steps']})\n{A_draw} of {A} agent(s) x "
         f"{K} attempt(s) per goal replayed; * goal reached, x collision, o time-out",
         fontsize=8,
