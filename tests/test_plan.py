@@ -135,17 +135,18 @@ def test_observation_with_the_plan_on():
     off, _ = make("Nav-v0", world="eval", episode_length=8)
     assert env.obs_size == off.obs_size + 1 == 29
     obs, st = jax.jit(env.reset)(jax.random.key(0), params)
-    assert st.plan.shape == (CELLS, CELLS) and obs.shape == (29,)
+    assert st.plan.field.shape == (CELLS, CELLS) and obs.shape == (29,)
     assert env.observation_space(params).contains(obs)
     assert np.isclose(obs[-1], st.dist)  # the goal's distance, last
-    wp = plan.waypoint(st.plan, params.world.size, st.goal, st.pose[:2], params.plan_lookahead)
+    wp = plan.at(st.plan, params, st.goal, st.pose[:2])
+    assert np.allclose(wp, st.plan.starts[st.start_index])  # the start's waypoint, kept for respawns
     assert np.isclose(obs[24], np.linalg.norm(np.asarray(wp) - np.asarray(st.pose[:2])), atol=1e-5)
     # a respawn inside the episode keeps the field (learn mode: drive into the wall)
     step = jax.jit(env.step)
     s = st
     for k in range(8):
         _, s, _, _, _, _ = step(jax.random.key(k), s, jnp.array([1.0, 0.0]), params)
-    assert np.array_equal(np.asarray(s.plan), np.asarray(st.plan))
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(s.plan), jax.tree.leaves(st.plan)))
 
 
 def test_the_config_turns_it_on_and_off():
@@ -222,7 +223,7 @@ def test_each_robot_of_a_shared_room_has_its_own_field():
     params = jax.vmap(make_params)(fleet)
     keys = jax.random.split(jax.random.key(0), 2)
     obs, st = jax.jit(jax.vmap(env.reset))(keys, params)
-    assert obs.shape == (2, 29) and not np.array_equal(np.asarray(st.plan[0]), np.asarray(st.plan[1]))
+    assert obs.shape == (2, 29) and not np.array_equal(np.asarray(st.plan.field[0]), np.asarray(st.plan.field[1]))
     obs, st, *_ = jax.jit(shared.fleet_step(env, np.ones(2, bool), 1))(keys, st, jnp.ones((2, 2)) * 0.5, params)
     assert np.isfinite(np.asarray(obs)).all()
 

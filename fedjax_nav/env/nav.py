@@ -79,7 +79,7 @@ class EnvState:
     # (robot=True: [starts, scan_samples], the true dense scan from the lidar's position)
     vel: jax.Array | None = None  # f32[2] executed (v, omega) in m/s, rad/s; robot=True only
     cmd_queue: jax.Array | None = None  # f32[max_delay, 2] past commands, newest first; max_delay > 0 only
-    plan: jax.Array | None = None  # f32[plan_cells, plan_cells] m to the goal (env.plan.py), cast at reset; plan only
+    plan: gp.Plan | None = None  # the field to the goal and the starts' waypoints (env/plan.py), at reset; plan only
 
 
 class NavEnv:
@@ -182,7 +182,9 @@ class NavEnv:
             return jnp.where(params.footprint > 0, params.footprint, params.collision_distance)
         return params.collision_distance
 
-    def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams) -> jax.Array:
+    def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams, at=None) -> jax.Array:
+        """The observation at `state` from the true scan `ranges`; `at`: the plan's waypoint when
+        known (a start row's, kept in the plan), else computed here."""
         if self.robot:
             values, invalid = rm.measure(key, ranges, params, self.max_range, self.noise, self.dropout_value)
             ranges = rm.pool_min(values, invalid, self.num_beams, self.max_range)
@@ -191,7 +193,7 @@ class NavEnv:
             ranges = jnp.clip(ranges, 0.0, self.max_range)
         target, dist = state.goal, state.dist
         if self.plan:  # the waypoint in place of the goal; the goal's distance as the last entry
-            target = gp.waypoint(state.plan, params.world.size, state.goal, state.pose[:2], params.plan_lookahead)
+            target = at if at is not None else gp.at(state.plan, params, state.goal, state.pose[:2])
             dist = jnp.linalg.norm(target - state.pose[:2])
         rel = target - state.pose[:2]
         bearing = jnp.arctan2(rel[1], rel[0]) - state.pose[2]
@@ -225,10 +227,10 @@ class NavEnv:
         k_start, k_obs = jax.random.split(key)
         start_ranges = jax.vmap(self.ranges, in_axes=(0, None))(params.world.starts, params)
         state = self._start(k_start, params, jnp.int32(0), start_ranges)
-        if self.plan:  # the goal is the episode's: a respawn inside it keeps the field
-            field = gp.goal_field(params.world, state.goal, self.radius(params), params.goal_radius, self.plan_cells)
-            state = state.replace(plan=field)
-        return self.observe(k_obs, state, start_ranges[state.start_index], params), state
+        if self.plan:  # the goal is the episode's: a respawn inside it keeps the plan
+            state = state.replace(plan=gp.make(params, state.goal, self.radius(params), self.plan_cells))
+        at = state.plan.starts[state.start_index] if self.plan else None
+        return self.observe(k_obs, state, start_ranges[state.start_index], params, at), state
 
     def step(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams, others: jax.Array | None = None
@@ -302,7 +304,8 @@ class NavEnv:
             scan = state.start_ranges[start.start_index]
             if others is not None:  # the start's cached scan, with the robots where they are now
                 scan = jnp.minimum(scan, self._cast(NO_SEGMENTS, others, start.pose, params))
-            obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params), obs)
+            at = state.plan.starts[start.start_index] if self.plan else None
+            obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params, at), obs)
         reward = (
             params.progress_scale * (state.dist - dist)
             + jnp.where(goal, params.reward_goal, 0.0)

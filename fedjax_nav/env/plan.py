@@ -8,6 +8,8 @@ cells per side, `cells`, so that rooms of any size share one program.
     field = distance_field(free, seeds, res)             f32[cells, cells]: m to the goal, 8-connected
     field = goal_field(world, goal, D_c, D_g, cells)     the three above for one goal
     wp = waypoint(field, size, goal, xy, lookahead)      f32[2]: about `lookahead` m down the field
+    p = make(params, goal, D_c, cells)                    Plan: the field and the waypoint at each start row
+    wp = at(p, params, goal, xy)                          the waypoint with the params' lookahead
 
 The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from the room's corner
 (-W/2, -H/2); a cell is free when its centre lies inside the room and keeps at least the
@@ -28,6 +30,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 from jax import lax
 
 from fedjax_nav.env.geometry import nearest_distance
@@ -204,3 +207,27 @@ def reachable(world, goal: jax.Array, clearance: jax.Array, goal_radius: jax.Arr
         return jnp.isfinite(field[iy, ix]) | jnp.any(jnp.isfinite(vals))
 
     return jax.vmap(one)(world.starts[:, :2])
+
+
+@struct.dataclass
+class Plan:
+    """What an episode keeps of its plan (`EnvState.plan`): the field, and the waypoint at each
+    start row, where a respawn puts the robot (so that a step computes one waypoint, not two;
+    as `EnvState.start_ranges` keeps the scans at the starts)."""
+
+    field: jax.Array  # f32[cells, cells] m to the goal
+    starts: jax.Array  # f32[starts, 2] the waypoint at each start row
+
+
+def make(params, goal: jax.Array, clearance: jax.Array, cells: int) -> Plan:
+    """An episode's `Plan` towards `goal` in the room of `params` (EnvParams: its world, goal
+    radius and plan_lookahead), inflated by `clearance`."""
+    world = params.world
+    field = goal_field(world, goal, clearance, params.goal_radius, cells)
+    starts = jax.vmap(lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead))(world.starts[:, :2])
+    return Plan(field, starts)
+
+
+def at(plan: Plan, params, goal: jax.Array, xy: jax.Array) -> jax.Array:
+    """f32[2]: the waypoint of `plan` for a robot at `xy` (`waypoint` with the params' lookahead)."""
+    return waypoint(plan.field, params.world.size, goal, xy, params.plan_lookahead)
