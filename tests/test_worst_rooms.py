@@ -158,3 +158,31 @@ def test_the_generalization_report_copies_each_points_worst_rooms(tmp_path):
     out = report(sweep, tmp_path, evaluate=False, copy_figures=tmp_path / "img", echo=lambda s: None)
     slug = p.label.replace("=", "_").replace(", ", "_")
     assert (tmp_path / "img" / f"generalization_worst_rooms_{slug}.png") in out["copied"]
+
+
+def test_a_suite_evaluated_under_another_robot_is_kept_apart_and_replayed_under_it(evaluated):
+    """`evaluate --suite probe --robot pooled_360` once ran the run's own robot and wrote over its
+    evaluation: now it drives the model (the protocol's static settings), keeps it in
+    eval/probe-robot-pooled_360/ with the model in suite.json, and its worst rooms replay under it."""
+    from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.suite import suite_protocol, under_robot
+    from fedjax_nav.worlds import load
+
+    run, _ = evaluated
+    own = json.loads((run / "eval" / "probe" / "suite.json").read_text())
+    out = io.StringIO()
+    args = ["evaluate", str(run), "--suite", "probe", "--attempts", "2", "--max-steps", str(T), "--robot", "pooled_360"]
+    with contextlib.redirect_stdout(out):
+        assert cli.main(args) == 0, out.getvalue()
+    folder = run / "eval" / "probe-robot-pooled_360"
+    kept = json.loads((folder / "suite.json").read_text())
+    assert kept["robot"]["model"] == "pooled_360" and kept["robot"]["scan_samples"] == 360
+    assert own["robot"]["model"] == "ideal" and json.loads((run / "eval" / "probe" / "suite.json").read_text()) == own
+    assert (folder / "worst_rooms.png").read_bytes()[:8] == PNG
+    pooled = under_robot(load_run(run), kept["robot"])
+    protocol = suite_protocol(pooled, load("train-0"), 1, 0.01, 0.01, 0, T)
+    assert protocol.settings["robot"] and protocol.settings["scan_samples"] == 360
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        shared = ["evaluate", str(run), "--suite", "probe", "--robots-per-room", "2", "--robot", "pooled_360"]
+        assert cli.main(shared) == 2
+    assert "--robot" in err.getvalue()

@@ -117,7 +117,16 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
         memory_budget=budget,
     )
     try:
+        robot = None
+        if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
+            from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
+
+            if args.robot not in ROBOT_MODELS:
+                raise UserError(f"--robot: unknown model {args.robot!r} (models: {', '.join(ROBOT_MODELS)})")
+            robot = RobotConfig(model=args.robot)
         if getattr(args, "robots_per_room", None):  # K robots per room (docs/shared_rooms.md)
+            if robot is not None:
+                raise UserError("--robot: not with --robots-per-room (shared rooms run the run's own robot model)")
             from fedjax_nav.evaluation.shared_rooms import evaluate_shared_runs
 
             kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps", "attempts")}
@@ -128,17 +137,9 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
             from fedjax_nav.evaluation.suite import evaluate_suite_runs
 
-            evaluate_suite_runs(
-                args.run_dirs, args.suite, then=None if args.no_figures else _worst(args.suite), **common
-            )
+            then = None if args.no_figures else _worst(args.suite)
+            evaluate_suite_runs(args.run_dirs, args.suite, then=then, robot=robot, **common)
             return 0
-        robot = None
-        if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
-            from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
-
-            if args.robot not in ROBOT_MODELS:
-                raise UserError(f"--robot: unknown model {args.robot!r} (models: {', '.join(ROBOT_MODELS)})")
-            robot = RobotConfig(model=args.robot)
         evaluate_runs(args.run_dirs, world=args.world, figures=not args.no_figures, robot=robot, **common)
     except EvalError as e:
         raise UserError(str(e)) from None

@@ -240,8 +240,7 @@ def add_evaluate(sub) -> None:
         default=None,
         metavar="MODEL",
         help=f"evaluate under this robot model ({', '.join(m for m in ROBOT_MODELS if m != 'custom')}; default: "
-        "the run's own); "
-        "kept in RUN/eval/<world>-robot-<MODEL>/ (docs/robot.md)",
+        "the run's own); kept in RUN/eval/<world or suite>-robot-<MODEL>/ (docs/robot.md)",
     )
     p.add_argument(
         "--suite",

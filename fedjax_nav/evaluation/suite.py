@@ -26,6 +26,7 @@ The rooms and the folder's name: `evaluation.suite_files`. The protocol on them,
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import time
@@ -121,6 +122,26 @@ def _rooms_program(program):
     return jax.jit(jax.vmap(program, (None, 0, None, 0)))
 
 
+def under_robot(run: RunAgents, robot) -> RunAgents:
+    """`run` evaluated under the robot model `robot` (a `RobotConfig`, or its fields as kept in
+    suite.json's "robot"; None: the run's own, docs/robot.md)."""
+    if robot is None:
+        return run
+    if isinstance(robot, dict):
+        from fedjax_nav.config import RobotConfig
+
+        robot = RobotConfig(**robot)
+    return dataclasses.replace(run, cfg=dataclasses.replace(run.cfg, robot=robot))
+
+
+def robot_folder(run_dir, suite: str, robot) -> Path:
+    """Where a suite evaluation is kept: RUN/eval/<suite folder>/, or <suite folder>-robot-<model>/
+    under a robot model other than the run's own (as `evaluate --world --robot`)."""
+    own = load_run(run_dir).cfg.robot
+    name = suite_folder(suite) if robot is None or robot == own else f"{suite_folder(suite)}-robot-{robot.model}"
+    return rundir.eval_dir(run_dir, name)
+
+
 def suite_protocol(run: RunAgents, world, attempts: int, range_noise, action_noise, seed, max_steps) -> SuiteProtocol:
     """The protocol of `run` on the stacked `world` [R, ...]: the run's env values with the noise
     (`envs.eval_values`: the run's robot model, as in training), T (`max_steps` or the run's), K
@@ -141,16 +162,18 @@ def evaluate_suite(
     seed: int = 0,
     max_steps: int | None = None,
     memory_budget: int | None = None,
+    robot=None,
 ) -> dict:
-    """The protocol of a run on every room of `suite` (a suite or group name, or a folder / glob of
-    world files: `is_file_suite`); returns {"summary", "families", "episodes"}.
+    """The protocol of a run (under the robot model `robot`: `under_robot`) on every room of `suite`
+    (a suite or group name, or a folder / glob of world files: `is_file_suite`); returns
+    {"summary", "families", "episodes"}.
     An evaluation whose estimate (`limits.eval_memory`: rooms x agents x goals x attempts) exceeds
     `memory_budget` bytes (default: the memory available now) is refused before it is allocated.
     The shortest safe paths (`paths.shortest_paths`) are computed on the host in a thread while the
     rollout runs."""
     check_counts(attempts, max_steps)
     members = _check_suite(suite)
-    run = load_run(run_dir)
+    run = under_robot(load_run(run_dir), robot)
     cfg, e = run.cfg, run.cfg.env
     world, families, room_seeds = suite_world(suite)
     R, G = world.goals.shape[:2]
@@ -187,6 +210,7 @@ def evaluate_suite(
         "eval_seed": int(seed),
         "seeds": sorted({int(s) for s in run.agent_seed}),
         "noise": {"range_noise": float(range_noise), "action_noise": float(action_noise)},
+        "robot": dataclasses.asdict(cfg.robot),
         "training_rooms": e.rooms,
         "training_families": list(e.room_families) if e.rooms == "procedural" else [],
         "ci": "95% percentile bootstrap (scipy.stats.bootstrap, 10,000 resamples) of the mean success: "
@@ -299,6 +323,7 @@ def evaluate_suite_runs(
     echo: Callable[[str], None] = print,
     memory_budget: int | None = None,
     then: Callable[[str | Path, Path], None] | None = None,
+    robot=None,
 ) -> dict:
     """What `fedjax-nav evaluate RUN... --suite NAME|DIR|GLOB` does: each run into
     RUN/eval/<suite_folder(suite)>/ (or `out` for one run), a table per run; `then(run_dir, folder)`
@@ -306,8 +331,8 @@ def evaluate_suite_runs(
     results = {}
     _check_suite(suite)  # a bad name or an empty folder: one line before any run is loaded
     for run_dir in run_dirs:
-        res = evaluate_suite(run_dir, suite, attempts, range_noise, action_noise, seed, max_steps, memory_budget)
-        dest = Path(out) if out is not None and len(run_dirs) == 1 else rundir.eval_dir(run_dir, suite_folder(suite))
+        res = evaluate_suite(run_dir, suite, attempts, range_noise, action_noise, seed, max_steps, memory_budget, robot)
+        dest = Path(out) if out is not None and len(run_dirs) == 1 else robot_folder(run_dir, suite, robot)
         paths = write_suite(res, dest)
         s = res["summary"]
         echo(

@@ -27,7 +27,7 @@ from fedjax_nav import rundir
 from fedjax_nav.evaluation import figures
 from fedjax_nav.evaluation.limits import EvalError, check_counts
 from fedjax_nav.evaluation.runs import load_run
-from fedjax_nav.evaluation.suite import suite_protocol
+from fedjax_nav.evaluation.suite import suite_protocol, under_robot
 from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
 from fedjax_nav.worlds import World, WorldError
 
@@ -107,7 +107,7 @@ def replay(
     if not (isinstance(rooms, (int, np.integer)) and rooms >= 1):
         raise EvalError(f"rooms: must be an integer >= 1, got {rooms!r}")
     folder, s, episodes = kept_evaluation(run_dir, suite, folder)
-    run = load_run(run_dir)
+    run = under_robot(load_run(run_dir), s.get("robot"))  # the robot the evaluation drove
     try:
         world, _, _ = suite_world(suite)
     except WorldError as e:
