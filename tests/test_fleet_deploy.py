@@ -90,15 +90,18 @@ def _rounds_done(out, at_least: int, timeout: float = 600.0) -> int:
 
 
 def _processes_of(folder) -> list[str]:
-    """The command lines of live processes naming `folder` (a deployment's leftovers)."""
+    """The command lines of live processes naming `folder`, or Flower app processes talking to a
+    port of a deployment under it (its ports.json): a deployment's leftovers."""
+    ports = [p for f in Path(folder).rglob("ports.json") for p in json.loads(f.read_text())]
     found = []
     for proc in Path("/proc").iterdir():
         try:
             line = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
         except OSError:
             continue
-        if proc.name.isdigit() and str(folder) in line and "pytest" not in line:
-            found.append(line)
+        if proc.name.isdigit() and "pytest" not in line:
+            if str(folder) in line or any(f"127.0.0.1:{p} " in line + " " for p in ports):
+                found.append(line)
     return found
 
 

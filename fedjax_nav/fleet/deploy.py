@@ -129,9 +129,11 @@ class Deployment:
     port: int = field(default_factory=free_port)
     procs: list[subprocess.Popen] = field(default_factory=list)
     pids: dict[str, int] = field(default_factory=dict)
+    ports: list[int] = field(default_factory=list)  # the SuperLink's and every SuperNode's (ports.json)
 
     def __post_init__(self):
         self.work.mkdir(parents=True, exist_ok=True)
+        self._listen(self.port)
         self.certs = make_tls(self.work / "certs") if self.tls else None
         home = self.work / "home"
         home.mkdir(exist_ok=True)
@@ -146,6 +148,14 @@ class Deployment:
         # the first. A user's own JAX_COMPILATION_CACHE_DIR is kept.
         cache = {"JAX_COMPILATION_CACHE_DIR": os.environ.get("JAX_COMPILATION_CACHE_DIR", str(self.work / "jax-cache"))}
         self.env = os.environ | {"FLWR_HOME": str(home)} | cache
+
+    def _listen(self, port: int) -> int:
+        """`port`, noted in ports.json (every port of every deployment in this folder, a resumed
+        one's too: what a leftover process would still talk to)."""
+        self.ports.append(port)
+        f = self.work / "ports.json"
+        rundir.write_json(f, sorted(set(json.loads(f.read_text()) if f.exists() else []) | set(self.ports)))
+        return port
 
     def _start(self, name: str, args: list[str]) -> subprocess.Popen:
         log = open(self.work / f"{name}.log", "a")
@@ -193,7 +203,7 @@ class Deployment:
         """SuperNode `index` (node config partition-id=index) of robot `index`, signing with `key`."""
         args = [str(BIN / "flower-supernode"), "--superlink", f"127.0.0.1:{self.port}"]
         state = self.work / "robots"  # the robot's own disk: its state after each round
-        args += ["--port", str(free_port()), "--node-config", f"partition-id={index} state-dir='{state}'"]
+        args += ["--port", str(self._listen(free_port())), "--node-config", f"partition-id={index} state-dir='{state}'"]
         args += ["--root-certificates", str(self.certs["ca"])] if self.tls else ["--insecure"]
         if key is not None:
             args += ["--auth-supernode-private-key", str(key)]
@@ -240,6 +250,27 @@ class Deployment:
                 os.killpg(proc.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+        for pid in strays(self.ports):  # app processes in their own session, orphaned by a killed parent
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def strays(ports) -> list[int]:
+    """Live Flower app processes (flwr-serverapp, flwr-clientapp) talking to 127.0.0.1 on one of
+    `ports`: a SuperLink or SuperNode starts them in their own session, so a SIGKILL of its group
+    leaves them running (found after a killed SuperLink). Linux's /proc; none elsewhere."""
+    found, proc_dir = [], Path("/proc")
+    for proc in proc_dir.iterdir() if proc_dir.is_dir() else ():
+        try:
+            words = (proc / "cmdline").read_bytes().decode(errors="replace").split("\0")
+        except OSError:
+            continue
+        if proc.name.isdigit() and any("flwr-" in w for w in words[:2]):
+            if any(w == f"127.0.0.1:{p}" for w in words for p in ports):
+                found.append(int(proc.name))
+    return found
 
 
 def deploy(
