@@ -131,8 +131,9 @@ class BraxNavEnv(Env):
       max_range: lidar range in m, as in `NavEnv`.
       collision_test: "exact" or "lidar", as in `NavEnv`.
       noise: sensor and actuation noise on, as in `NavEnv`.
-      plan, plan_cells: the global plan's waypoint in the observation, as in `NavEnv`
-        (docs/planning.md; its lookahead is the `EnvParams` field `plan_lookahead`).
+      plan: the global plan's waypoint in the observation, as in `NavEnv` (docs/planning.md;
+        its lookahead is the `EnvParams` field `plan_lookahead`).
+      plan_cells: the plan's grid cells per side, as in `NavEnv`.
       **param_overrides: `EnvParams` fields (e.g. `goal_index=1`, `random_starts=True`,
         `v_max=0.3`), scalars or arrays with one entry per playground.
     """

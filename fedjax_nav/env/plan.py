@@ -8,8 +8,8 @@ cells per side, `cells`, so that rooms of any size share one program.
     field = distance_field(free, seeds, res)             f32[cells, cells]: m to the goal, 8-connected
     field = goal_field(world, goal, D_c, D_g, cells)     the three above for one goal
     wp = waypoint(field, size, goal, xy, lookahead)      f32[2]: about `lookahead` m down the field
-    p = make(params, goal, D_c, cells)                    Plan: the field and the waypoint at each start row
-    wp = at(p, params, goal, xy)                          the waypoint with the params' lookahead
+    p = make(params, goal, D_c, cells)                   Plan: the field and the waypoint at each start row
+    wp = at(p, params, goal, xy)                         the waypoint with the params' lookahead
 
 The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from the room's corner
 (-W/2, -H/2); a cell is free when its centre lies inside the room and keeps at least the
