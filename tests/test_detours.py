@@ -56,4 +56,10 @@ def test_the_replayed_episodes_are_the_kept_evaluations_and_crashes_touch(evalua
     crashed = table[table["outcome"] == "collision"]
     assert len(crashed) and (crashed["crash_clearance_m"] < 0.25 + 1e-6).all()
     assert (table["progress"] >= -1e-6).all() and (table["closest"] <= table["steps"]).all()
+    # the most given back, by brute force over each episode's live steps
+    for r in table.head(8).itertuples():
+        d = np.linalg.norm(
+            w.poses[r.i, r.agent, r.goal, r.attempt, : r.steps + 1, :2] - w.world.goals[r.i, r.goal], axis=1
+        )
+        assert r.gave_back_m == pytest.approx(max(d[t] - d[: t + 1].min() for t in range(len(d))), abs=1e-5)
     assert detours.summary(table)["episodes"].sum() == 2 * int(table["detour"].astype(bool).sum())  # family + all

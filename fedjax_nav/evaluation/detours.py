@@ -4,7 +4,8 @@ rooms with the most failed ones, each read where it went wrong (`read_episodes`,
 
 - `outcome` (success, collision, timeout); `progress`: how much nearer the goal the robot came at
   its closest approach (m) than at its start, `closest` that step;
-- `turned_back`: it ended more than TURNED m farther from the goal than its closest approach;
+- `gave_back_m`: the most it ever moved away from the goal, the largest rise of its goal distance
+  above the least it had reached before; `turned_back`: more than TURNED m;
 - `stalled` (time-outs): the share of the steps after its closest approach in which it moved less
   than STALL x a full step (v_max dt), `last_100_m` how far it got in its last 100 steps;
 - at the closest approach, what its ideal beams saw: `goal_blocked`, the beam nearest the goal's
@@ -28,7 +29,7 @@ from fedjax_nav.env.geometry import lidar, nearest_distance
 from fedjax_nav.evaluation.suite_stats import DETOUR
 from fedjax_nav.evaluation.worst_rooms import kept_evaluation, rank_rooms, replay
 
-TURNED = 0.3  # m farther from the goal at the end than at the closest approach
+TURNED = 0.3  # m farther from the goal than the nearest it had come before: it turned back
 STALL = 0.2  # a step shorter than this share of v_max * dt is standing still
 UNSEEN = 0.05  # m: a crash whose nearest beam reads more than D_c + this was not seen
 FRONT = np.pi / 4  # the front sector's half-width
@@ -99,12 +100,15 @@ def read_episodes(w, episodes: pd.DataFrame, env) -> pd.DataFrame:
     _, _, _, beam = jax.device_get(seen(seg, circ, end, goals))
     clear = jax.device_get(jax.vmap(lambda s, c, p: nearest_distance(s, p, c))(seg, circ, end[:, :2]))
     back = np.maximum(steps - 100, 0)
+    live_d = np.where(live, dist, -np.inf)
+    gave_back = np.max(live_d - np.minimum.accumulate(np.where(live, dist, np.inf), axis=1), axis=1)
     return rows.assign(
         outcome=outcome,
         steps=steps,
         closest=closest,
         progress=dist[:, 0] - dist[e, closest],
-        turned_back=dist[e, steps] - dist[e, closest] > TURNED,
+        gave_back_m=gave_back,
+        turned_back=gave_back > TURNED,
         stalled=np.where(after.any(1), (still & after).sum(1) / np.maximum(after.sum(1), 1), np.nan),
         last_100_m=np.linalg.norm(end[:, :2] - poses[e, back, :2], axis=-1),
         goal_blocked=blocked,
@@ -130,7 +134,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     """Per family (and all) and outcome, over the detour episodes: count and the mean of each reading."""
     t = table[table["detour"].astype(bool)]
     t = pd.concat([t, t.assign(family="all")])
-    cols = ["progress", "turned_back", "stalled", "last_100_m", "goal_blocked", "front_m", "unseen"]
+    cols = ["progress", "gave_back_m", "turned_back", "stalled", "last_100_m", "goal_blocked", "front_m", "unseen"]
     out = t.groupby(["family", "outcome"])[cols].mean()
     out.insert(0, "episodes", t.groupby(["family", "outcome"]).size())
     return out.reset_index()
