@@ -19,6 +19,7 @@ def main(argv=None) -> int:
     ap.add_argument("run", help="a training run directory with a kept suite evaluation")
     ap.add_argument("--suite", default="dense-heldout")
     ap.add_argument("--rooms", type=int, default=12, help="rooms replayed, those with the most failed detours")
+    ap.add_argument("--folder", default=None, help="the kept evaluation (default RUN/eval/<suite>/)")
     ap.add_argument("--csv", default=None, help="write every replayed episode's row here")
     ap.add_argument("--figure", default=None, help="draw the replayed rooms here (PNG)")
     a = ap.parse_args(argv)
@@ -28,7 +29,7 @@ def main(argv=None) -> int:
     from fedjax_nav.experiments.thesis_report import md_table
 
     try:
-        table, replayed = detours.read(a.run, a.suite, a.rooms)
+        table, replayed = detours.read(a.run, a.suite, a.rooms, folder=a.folder)
     except EvalError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
