@@ -23,7 +23,25 @@ from fedjax_nav.training.hparams import hparams_from_config
 from fedjax_nav.training.trainer import Trainer
 
 pytest.importorskip("flwr")
-from fedjax_nav.fleet.deploy import Deployment, deploy, main, make_node_key  # noqa: E402
+from fedjax_nav.fleet.deploy import Deployment, deploy, free_port, main, make_node_key, strays  # noqa: E402
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads Linux's /proc")
+def test_a_flower_app_process_orphaned_by_a_kill_is_found_by_its_port():
+    """A ServerApp outlived its killed SuperLink (its own session): `strays` finds Flower app
+    processes by the deployment's ports, which `Deployment.stop` then kills; no other process."""
+    port, other = free_port(), free_port()
+    code = "import time; time.sleep(60)"
+    argv = f"exec -a flwr-serverapp {sys.executable} -c '{code}' --runtime-api-address 127.0.0.1:{port}"
+    proc = subprocess.Popen(["bash", "-c", argv])
+    try:
+        deadline = time.monotonic() + 10
+        while proc.pid not in strays([port]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert strays([port]) == [proc.pid] and strays([other]) == []
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def test_a_supernode_whose_key_is_not_registered_is_refused(tmp_path):
