@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy.sparse.csgraph import dijkstra
+from test_rooms_training import TINY as ROOMS_TINY
 
 from fedjax_nav import cli, worlds
 from fedjax_nav.config import load_config
@@ -157,18 +158,8 @@ def test_the_config_turns_it_on_and_off():
     assert s["plan"] is True and s["plan_cells"] == 32
 
 
-TINY = [
-    "env.episode_length=16",
-    "run.chunk_episodes=1",
-    "offpolicy.batch_size=8",
-    "offpolicy.hidden=8",
-    "offpolicy.depth=1",
-    "run.checkpoint_every=1",
-    "fed.period=1",
-    "env.worlds=[train-0,train-2]",
-    "env.plan=true",
-    f"env.plan_cells={CELLS}",
-]
+# test_rooms_training's tiny fleet (two thesis rooms), checkpointed every episode, with the plan
+TINY = [*ROOMS_TINY, "run.checkpoint_every=1", "env.plan=true", f"env.plan_cells={CELLS}"]
 
 
 def _cli(argv) -> tuple[int, str]:
