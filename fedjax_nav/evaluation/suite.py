@@ -137,7 +137,7 @@ def under_robot(run: RunAgents, robot) -> RunAgents:
 def robot_folder(run_dir, suite: str, robot) -> Path:
     """Where a suite evaluation is kept: RUN/eval/<suite folder>/, or <suite folder>-robot-<model>/
     under a robot model other than the run's own (as `evaluate --world --robot`)."""
-    own = load_run(run_dir).cfg.robot
+    own = rundir.read_config(run_dir).robot  # the config only: the parameters are not needed here
     name = suite_folder(suite) if robot is None or robot == own else f"{suite_folder(suite)}-robot-{robot.model}"
     return rundir.eval_dir(run_dir, name)
 
