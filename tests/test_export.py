@@ -125,7 +125,7 @@ def _export(run_dir, out, fmt, seed=None, agent=None):
 def test_numpy_export_equals_jax_actor(run_dir, jax_actions, tmp_path):
     obs, ref, run = jax_actions
     out = _export(run_dir, tmp_path / "np", "numpy", seed=FIRST_SEED + 1, agent=1)
-    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "policy.py", "weights.npz"]
+    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "policy.py", "policy_inputs.py", "weights.npz"]
     meta = json.loads((out / "meta.json").read_text())
     assert meta["num_beams"] == NUM_BEAMS and meta["max_range"] == MAX_RANGE
     assert (meta["v_max"], meta["omega_max"], meta["dt"]) == (ENV["v_max"], ENV["omega_max"], ENV["dt"])
@@ -156,7 +156,7 @@ def test_onnx_export_equals_jax_actor(run_dir, jax_actions, tmp_path):
     onnx = pytest.importorskip("onnx")
     obs, ref, _ = jax_actions
     out = _export(run_dir, tmp_path / "onnx", "onnx", seed=FIRST_SEED, agent=1)
-    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "policy.onnx", "policy.py"]
+    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "policy.onnx", "policy.py", "policy_inputs.py"]
     model = onnx.load(str(out / "policy.onnx"))
     props = {p.key: p.value for p in model.metadata_props}
     assert json.loads(props["num_beams"]) == NUM_BEAMS and json.loads(props["seed"]) == FIRST_SEED
@@ -262,13 +262,14 @@ def test_exported_policy_runs_without_jax(run_dir, jax_actions, tmp_path):
     assert smoke.returncode == 0 and len(json.loads(smoke.stdout)["action"]) == 2
 
 
-def test_template_imports_only_numpy_and_the_standard_library():
+@pytest.mark.parametrize("path", [ex.TEMPLATE, ex.INPUTS], ids=lambda p: p.name)
+def test_template_imports_only_numpy_and_the_standard_library(path):
     import ast
 
-    tree = ast.parse(ex.TEMPLATE.read_text())
+    tree = ast.parse(path.read_text())
     names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     names |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
-    assert names <= {"numpy", "json", "math", "os", "__future__"}, names
+    assert names <= {"numpy", "json", "math", "os", "importlib", "__future__"}, names
 
 
 # ----------------------------------------------------------------------------- LaserScan
@@ -492,7 +493,8 @@ def test_cli_exports(run_dir, tmp_path, capsys):
     assert _cli([str(run_dir), "--out", str(tmp_path / "o")]) == 2
     assert "not empty" in capsys.readouterr().err
     assert _cli([str(run_dir), "--out", str(tmp_path / "o"), "--force"]) == 0
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["meta.json", "policy.py", "weights.npz"]
+    files = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert files == ["meta.json", "policy.py", "policy_inputs.py", "weights.npz"]
 
 
 @pytest.mark.parametrize(

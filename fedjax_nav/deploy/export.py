@@ -6,12 +6,12 @@
 default: the run's first seed, config run.seed). --agent K: the network within that seed (the
 `net` column; 0..n_nets-1, a shared-network method has only 0; default 0).
 
-numpy: DIR/weights.npz + DIR/policy.py (policy_template.py: the actor and the observation
-functions in numpy, no JAX) + DIR/meta.json.
+numpy: DIR/weights.npz + DIR/policy.py (policy_template.py: the actor in numpy, no JAX) +
+DIR/policy_inputs.py (the observation functions, which policy.py loads) + DIR/meta.json.
 onnx:  DIR/policy.onnx (input "obs" float32[batch, num_beams + 4], output "action"
 float32[batch, 2]; a recurrent policy also takes "h" float32[batch, gru] and returns "h_out")
-+ DIR/meta.json + DIR/policy.py (for its observation functions; its `Policy` class needs the
-numpy format's weights.npz).
++ DIR/meta.json + DIR/policy.py and DIR/policy_inputs.py (for the observation functions; its
+`Policy` class needs the numpy format's weights.npz).
 
 Every learner exports its greedy action, as `agents.learners.Learner.greedy` computes it: how is
 data, the learner's row of fedjax_nav/learner_table.py (`actor_section`: the config section of its
@@ -59,7 +59,8 @@ def actor_kind(cfg) -> str:
     return "gru" if row.recurrent and get(cfg, row.recurrent) != "none" else row.export
 
 
-TEMPLATE = Path(__file__).with_name("policy_template.py")
+TEMPLATE = Path(__file__).with_name("policy_template.py")  # written as DIR/policy.py
+INPUTS = Path(__file__).with_name("policy_inputs.py")  # written beside it under its own name (policy.py loads it)
 
 
 class ExportError(ValueError):
@@ -271,15 +272,16 @@ def _export_meta(cfg, d, run_dir, fmt: str, seed: int, agent: int, flat: int, ki
 def _write_export(out: Path, fmt: str, meta: dict, weights: dict, kind: str, activation: str) -> list[Path]:
     """Write the export's files into `out` (the other format's files removed); returns them."""
     out.mkdir(parents=True, exist_ok=True)
-    for name in ("weights.npz", "policy.onnx", "policy.py", "meta.json"):  # --force: no stale files of another format
+    # --force: no stale files of another format
+    for name in ("weights.npz", "policy.onnx", "policy.py", INPUTS.name, "meta.json"):
         (out / name).unlink(missing_ok=True)
     written = []
     if fmt == "numpy":
-        meta["files"] = ["weights.npz", "policy.py", "meta.json"]
+        meta["files"] = ["weights.npz", "policy.py", INPUTS.name, "meta.json"]
         np.savez(out / "weights.npz", **weights)
         written.append(out / "weights.npz")
     else:
-        meta["files"] = ["policy.onnx", "policy.py", "meta.json"]
+        meta["files"] = ["policy.onnx", "policy.py", INPUTS.name, "meta.json"]
         meta["onnx"] = {
             "input": "obs",
             "input_shape": ["batch", meta["network"]["obs_size"]],
@@ -302,8 +304,9 @@ def _write_export(out: Path, fmt: str, meta: dict, weights: dict, kind: str, act
         (out / "policy.onnx").write_bytes(model.SerializeToString())
         written.append(out / "policy.onnx")
     shutil.copyfile(TEMPLATE, out / "policy.py")
+    shutil.copyfile(INPUTS, out / INPUTS.name)
     (out / "meta.json").write_text(json.dumps(meta, indent=1) + "\n")
-    written += [out / "policy.py", out / "meta.json"]
+    written += [out / "policy.py", out / INPUTS.name, out / "meta.json"]
     return written
 
 

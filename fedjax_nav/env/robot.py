@@ -7,7 +7,7 @@ the thesis never calls them, so its program is the one it always was). The numbe
 their sources) live with `fedjax_nav.robots` (`ROBOT_MODELS`); here they arrive as
 traced `EnvParams` fields.
 
-The pooling rule is the exported policy's `pool_scan` (fedjax_nav/deploy/policy_template.py,
+The pooling rule is the exported policy's `pool_scan` (fedjax_nav/deploy/policy_inputs.py,
 mode="min", invalid=None), so the simulator and a ROS node build the same observation from the
 same scan: sample j of an S-sample scan is at heading + 2 pi j / S; beam i's sector holds the
 samples at angles in [2 pi i / n - pi / n, 2 pi i / n + pi / n); a sample that reads 0 (the
