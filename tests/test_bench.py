@@ -77,7 +77,7 @@ def test_each_row_of_braxs_algorithm_is_divided_by_the_last_brax_rate_of_the_sam
             "envs_per_robot": 256,
             "rooms": "procedural ['mixture']",
             "agent_steps_per_s": 30.0,
-            "vs_brax": True,
+            "vs_brax": "ppo",
         },
         {
             "bench": "train",
@@ -87,7 +87,7 @@ def test_each_row_of_braxs_algorithm_is_divided_by_the_last_brax_rate_of_the_sam
             "envs_per_robot": 256,
             "rooms": "fixed",
             "agent_steps_per_s": 45.0,
-            "vs_brax": True,
+            "vs_brax": "ppo",
         },
         {
             "bench": "train",
@@ -97,13 +97,26 @@ def test_each_row_of_braxs_algorithm_is_divided_by_the_last_brax_rate_of_the_sam
             "envs_per_robot": 256,
             "rooms": "fixed",
             "agent_steps_per_s": 9.0,
-            "vs_brax": False,
+            "vs_brax": None,
+        },
+        {
+            "bench": "train",
+            "learner": "sac",
+            "method": "iddpg",
+            "robots": 1,
+            "envs_per_robot": 64,
+            "rooms": "fixed",
+            "agent_steps_per_s": 20.0,
+            "vs_brax": "sac",
         },
         {"bench": "brax_ppo", "agent_steps_per_s": 1.0},
         {"bench": "brax_ppo", "agent_steps_per_s": 60.0},
+        {"bench": "brax_sac", "agent_steps_per_s": 25.0},
     ]
     ratios = bench_learners.brax_ratios(rows)
-    assert [r["value"] for r in ratios] == [0.5, 0.75]  # the GRU row is not brax's algorithm
+    # the GRU row is not brax's algorithm; SAC's row is divided by brax's SAC, not its PPO
+    assert [r["value"] for r in ratios] == [0.5, 0.75, 0.8]
     text = bench.format_rows(ratios)
     assert "PPO snddpg (5 x 256 environments, thesis rooms) / brax's steady rate | 0.75x" in text
+    assert "SAC iddpg (1 x 64 environments, thesis rooms) / brax's steady rate | 0.80x" in text
     assert "procedural rooms" in text.splitlines()[0]

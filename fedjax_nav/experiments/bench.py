@@ -317,6 +317,12 @@ def format_rows(rows: list[dict]) -> str:
                 f"{r['agent_steps_per_s']:,.0f} agent-steps/s steady (epochs of two lengths differenced; "
                 f"brax's own training/sps {r['brax_sps']:,.0f}, with a fixed {r['epoch_fixed_s']:.1f} s per epoch) |"
             )
+        elif r["bench"] == "brax_sac":
+            lines.append(
+                f"| brax sac.train | {r['num_envs']} environments, one gradient step of {r['batch']} rows per "
+                f"environment step, thesis rooms | {r['agent_steps_per_s']:,.0f} agent-steps/s steady (epochs of two "
+                f"lengths differenced; brax's own training/sps {r['brax_sps']:,.0f}) |"
+            )
         elif r["bench"] == "shared":
             lines.append(
                 f"| env, shared rooms | {r['robots_per_room']} robots per room x {r['rooms']} procedural "
