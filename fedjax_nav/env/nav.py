@@ -153,7 +153,7 @@ class NavEnv:
 
     @property
     def obs_size(self) -> int:
-        return self.num_beams + 4 + int(self.plan)
+        return self.num_beams + len(gp.layout(self.plan))
 
     action_size = 2
 
@@ -198,8 +198,11 @@ class NavEnv:
         rel = target - state.pose[:2]
         bearing = jnp.arctan2(rel[1], rel[0]) - state.pose[2]
         bearing = jnp.arctan2(jnp.sin(bearing), jnp.cos(bearing))
-        extra = [state.dist[None]] if self.plan else []
-        return jnp.concatenate([ranges, jnp.stack([dist, bearing]), state.prev_action, *extra])
+        near = "waypoint" if self.plan else "goal"  # the entries in the order of gp.layout (the export's too)
+        v, omega = state.prev_action
+        entries = {f"{near}_distance": dist, f"{near}_bearing": bearing, "previous_v": v, "previous_omega": omega}
+        entries = {"goal_distance": state.dist, **entries}
+        return jnp.concatenate([ranges, jnp.stack([entries[k] for k in gp.layout(self.plan)])])
 
     def _start(self, key: jax.Array, params: EnvParams, t: jax.Array, start_ranges: jax.Array, plan=None) -> EnvState:
         w = params.world

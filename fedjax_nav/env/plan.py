@@ -9,6 +9,7 @@ cells per side, `cells`, so that rooms of any size share one program.
     field = goal_field(world, goal, D_c, D_g, cells)     the three above for one goal
     wp = waypoint(field, size, goal, xy, lookahead)      f32[2]: about `lookahead` m down the field
     p = make(params, goal, D_c, cells)                   Plan: the field and the waypoint at each start row
+    names = layout(plan)                                 the observation's entries after the ranges
     wp = at(p, params, goal, xy)                         the waypoint with the params' lookahead
 
 The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from the room's corner
@@ -42,6 +43,16 @@ _DY = (-1, -1, -1, 0, 0, 1, 1, 1)
 _DX = (-1, 0, 1, -1, 1, -1, 0, 1)
 _STEP = tuple(SQRT2 if dy and dx else 1.0 for dy, dx in zip(_DY, _DX))
 SIGHT = 16  # points tested on the straight way from the robot to each next cell of the walk
+# The observation's entries after the ranges, by name (`NavEnv.observe` builds them in this order;
+# `fedjax-nav export` writes them to meta.json, where the exported policy reads them: docs/export.md).
+MAPLESS = ("goal_distance", "goal_bearing", "previous_v", "previous_omega")
+PLANNED = ("waypoint_distance", "waypoint_bearing", "previous_v", "previous_omega", "goal_distance")
+
+
+def layout(plan: bool) -> tuple[str, ...]:
+    """The names of the observation's entries after the ranges: the waypoint's in place of the
+    goal's with the plan, the goal's distance last (docs/planning.md, "the observation")."""
+    return PLANNED if plan else MAPLESS
 
 
 def grid(size: jax.Array, cells: int) -> tuple[jax.Array, jax.Array, jax.Array]:
