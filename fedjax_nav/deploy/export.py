@@ -137,6 +137,14 @@ ACTION_DOC = {
     "squashed": ["v / v_max in [0, 1] (0.5 + 0.5 tanh(mean_v))", "omega / omega_max in [-1, 1] (tanh(mean_omega))"],
 }
 ACTION_DOC["gru"] = ACTION_DOC["squashed"]
+ENTRY_DOC = {  # meta.json's words for each entry of the env's observation layout (env/plan.py's `layout`)
+    "goal_distance": "goal distance (m)",
+    "goal_bearing": "goal bearing relative to the heading (rad, [-pi, pi], ccw positive)",
+    "waypoint_distance": "the plan's waypoint's distance (m)",
+    "waypoint_bearing": "the plan's waypoint's bearing relative to the heading (rad, [-pi, pi], ccw positive)",
+    "previous_v": "previous action v / v_max in [0, 1]",
+    "previous_omega": "previous action omega / omega_max in [-1, 1]",
+}
 
 
 # ----------------------------------------------------------------------------- export
@@ -182,10 +190,6 @@ def export_run(
     cfg = run.cfg
     from fedjax_nav.learner_table import get as learner_row
 
-    if cfg.env.plan:  # the exported observation has no waypoint yet (docs/planning.md, "Not yet")
-        raise ExportError(
-            f"{run.run_dir}: env.plan: true; export does not build the plan's waypoint yet (docs/planning.md)"
-        )
     kind = actor_kind(cfg)
     if kind not in WEIGHTS:
         raise ExportError(f"{run.run_dir}: learner {cfg.learner}: export supports the actors {', '.join(WEIGHTS)}")
@@ -219,8 +223,10 @@ def _checked_out(fmt: str, out: Path, force: bool) -> Path:
 def _export_meta(cfg, d, run_dir, fmt: str, seed: int, agent: int, flat: int, kind: str, weights: dict) -> dict:
     """meta.json of an export (without its "files" and "onnx" entries, which the writing adds); `d`
     the config section of the actor's sizes."""
+    from fedjax_nav.env.plan import layout
+
     e = cfg.env
-    obs_size = int(e.num_beams) + 4
+    entries = layout(bool(e.plan))  # the env's own order (docs/export.md, "Exporting a plan run")
     meta = {
         "format": fmt,
         "num_beams": int(e.num_beams),
@@ -238,7 +244,7 @@ def _export_meta(cfg, d, run_dir, fmt: str, seed: int, agent: int, flat: int, ki
         "agent_index": flat,
         "network": {
             "kind": kind,
-            "obs_size": obs_size,
+            "obs_size": int(e.num_beams) + len(entries),
             "hidden": int(d.hidden),
             "depth": int(d.depth),
             "activation": d.activation,
@@ -248,13 +254,18 @@ def _export_meta(cfg, d, run_dir, fmt: str, seed: int, agent: int, flat: int, ki
         },
         "observation": [
             "ranges[num_beams] (m, beam i at heading + 2 pi i / num_beams, clipped to max_range)",
-            "goal distance (m)",
-            "goal bearing relative to the heading (rad, [-pi, pi], ccw positive)",
-            "previous action v / v_max in [0, 1]",
-            "previous action omega / omega_max in [-1, 1]",
+            *(ENTRY_DOC[name] for name in entries),
         ],
+        "observation_layout": list(entries),
         "action": ACTION_DOC[kind],
     }
+    if e.plan:
+        meta["plan"] = {
+            "lookahead": float(e.plan_lookahead),
+            "cells": int(e.plan_cells),
+            "waypoint": "the first pose of the planner's path at least lookahead m along it from the robot, else "
+            "its last pose (policy.py's path_waypoint, Policy.follow); the simulator's grid had cells x cells cells",
+        }
     if "obs_norm/mean" in weights:
         meta["observation_normalization"] = (
             "the network's input is clip((obs - mean) / std, -clip, clip), weights obs_norm/mean, obs_norm/std, "

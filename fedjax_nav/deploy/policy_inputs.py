@@ -10,7 +10,9 @@ fedjax_nav.env.geometry; docs/export.md, "Observation conventions"):
   `max_range`.
 - Observation, float32[num_beams + 4]: the ranges (m, clipped to [0, max_range]), the goal
   distance (m), the goal bearing relative to the heading (rad, wrapped to [-pi, pi],
-  counter-clockwise positive), and the previous action in network units.
+  counter-clockwise positive), and the previous action in network units. A policy trained with
+  the plan (env.plan: true): float32[num_beams + 5], the waypoint's distance and bearing in place
+  of the goal's, the goal's distance last (meta.json's "observation_layout"; `path_waypoint`).
 - Scan pooling (`pool_scan`): a scan with more samples than beams is reduced to one range per
   beam, the sector minimum (mode="min", default: never longer than the exact beam, but shorter
   than the simulator's ray where the range changes within the sector: median 4-7 cm, the 10 %
@@ -24,7 +26,15 @@ import math
 
 import numpy as np
 
-__all__ = ["pool_scan", "wrap_angle", "goal_features", "build_observation", "yaw_from_quaternion"]
+__all__ = [
+    "MAPLESS_LAYOUT",
+    "pool_scan",
+    "wrap_angle",
+    "goal_features",
+    "build_observation",
+    "path_waypoint",
+    "yaw_from_quaternion",
+]
 
 
 def pool_scan(
@@ -105,20 +115,65 @@ def goal_features(pose, goal) -> np.ndarray:
     return np.stack([dist, bearing], axis=-1).astype(np.float32)
 
 
-def build_observation(ranges, pose, goal, prev_action) -> np.ndarray:
-    """The policy's observation float32[..., num_beams + 4], as NavEnv.observe builds it:
-    concat(ranges, goal distance, goal bearing, previous action in network units).
+# The entries after the ranges of an export whose meta.json names none (exported before the plan):
+# the env's mapless layout, fedjax_nav/env/plan.py's MAPLESS (tests/test_export_plan.py checks it).
+MAPLESS_LAYOUT = ("goal_distance", "goal_bearing", "previous_v", "previous_omega")
+
+
+def build_observation(ranges, pose, goal, prev_action, waypoint=None, layout=MAPLESS_LAYOUT) -> np.ndarray:
+    """The policy's observation float32[..., num_beams + len(layout)], as NavEnv.observe builds it:
+    concat(ranges, the entries of `layout` in its order).
 
     ranges: the pooled ranges (`pool_scan`), m; pose: (x, y, yaw); goal: (x, y);
     prev_action: the last action sent, in network units (v / v_max, omega / omega_max), clipped
-    to [0, 1] x [-1, 1] as the simulator stores it; (0, 0) at the start of an episode.
+    to [0, 1] x [-1, 1] as the simulator stores it; (0, 0) at the start of an episode;
+    waypoint: (x, y), the plan's waypoint (`path_waypoint`), for a policy trained with the plan;
+    layout: the entries' names, meta.json's "observation_layout" (goal_distance, goal_bearing,
+    waypoint_distance, waypoint_bearing, previous_v, previous_omega); the mapless one by default.
     """
     ranges = np.asarray(ranges, np.float32)
     prev = np.clip(np.asarray(prev_action, np.float32), [0.0, -1.0], [1.0, 1.0]).astype(np.float32)
-    feats = goal_features(pose, goal)
-    lead = np.broadcast_shapes(ranges.shape[:-1], feats.shape[:-1], prev.shape[:-1])
-    parts = [np.broadcast_to(p, lead + p.shape[-1:]) for p in (ranges, feats, prev)]
+    goal_f = goal_features(pose, goal)
+    entries = {"goal_distance": goal_f[..., 0], "goal_bearing": goal_f[..., 1]}
+    entries.update(previous_v=prev[..., 0], previous_omega=prev[..., 1])
+    if waypoint is not None:
+        way_f = goal_features(pose, waypoint)
+        entries.update(waypoint_distance=way_f[..., 0], waypoint_bearing=way_f[..., 1])
+    missing = [k for k in layout if k not in entries]
+    if missing:
+        raise ValueError(
+            f"the observation's layout has {', '.join(missing)}: the policy was trained with the plan, pass its "
+            'waypoint (path_waypoint; docs/export.md, "Exporting a plan run")'
+        )
+    feats = np.stack(np.broadcast_arrays(*(entries[k] for k in layout)), axis=-1)
+    lead = np.broadcast_shapes(ranges.shape[:-1], feats.shape[:-1])
+    parts = [np.broadcast_to(p, lead + p.shape[-1:]) for p in (ranges, feats)]
     return np.concatenate(parts, axis=-1).astype(np.float32)
+
+
+def path_waypoint(path, position, lookahead: float, search: float = 2.0) -> np.ndarray | None:
+    """The plan's waypoint on a planner's path, as fedjax_nav/env/plan.py's walk takes it
+    (docs/export.md, "Exporting a plan run"): float32[2], the first pose at least `lookahead` m
+    along the path from the robot's place on it, else the path's last pose (the goal's end; the
+    simulator's waypoint is the goal within `lookahead` of it). None for an empty path.
+
+    path: float[n, 2], the poses' (x, y) (nav2's nav_msgs/Path on /plan), in the frame of
+    `position` (x, y[, yaw]). The robot's place: the pose nearest `position` among those within
+    the path's first `search` m (a planner replans from the robot, nav2's about once a second; a
+    path that folds back near the robot further on is not taken for where it stands). A NaN or an
+    infinity in the path gives a NaN waypoint: the observation is then unsafe and `Policy` stops
+    (docs/export.md, "Unsafe observations")."""
+    p = np.asarray(path, np.float64).reshape(-1, 2)
+    if p.shape[0] == 0:
+        return None
+    if not np.all(np.isfinite(p)):
+        return np.full(2, np.nan, np.float32)
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    xy = np.asarray(position, np.float64).reshape(-1)[:2]
+    with np.errstate(invalid="ignore"):
+        start = int(np.argmin(np.where(arc <= search, np.hypot(*(p - xy).T), np.inf)))
+    ahead = np.flatnonzero(arc - arc[start] >= lookahead)
+    return p[ahead[0] if ahead.size else -1].astype(np.float32)
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:

@@ -7,6 +7,7 @@ This file is copied into every exported folder by `fedjax-nav export` (it is
     policy = Policy("path/to/export")              # reads weights.npz and meta.json beside it
     ranges = policy.scan_ranges(msg.ranges, msg.angle_min, msg.angle_increment,
                                 msg.range_min, msg.range_max)          # a sensor_msgs/LaserScan
+    policy.follow(path_xy)                          # a plan run only: the planner's path (nav_msgs/Path)
     obs = policy.observation(ranges, (x, y, yaw), (goal_x, goal_y), prev_action)
     action = policy(obs)                            # (v / v_max, omega / omega_max)
     if policy.last_unsafe: ...                      # NaN/inf in obs: action is the stop command (0, 0)
@@ -64,6 +65,8 @@ __all__ = [
     "pool_scan",
     "goal_features",
     "build_observation",
+    "path_waypoint",
+    "MAPLESS_LAYOUT",
     "wrap_angle",
     "yaw_from_quaternion",
     "action_to_velocity",
@@ -87,6 +90,7 @@ def _beside(name: str):
 _inputs = _beside("policy_inputs")  # the observation's functions (policy_inputs.py)
 pool_scan, wrap_angle, goal_features = _inputs.pool_scan, _inputs.wrap_angle, _inputs.goal_features
 build_observation, yaw_from_quaternion = _inputs.build_observation, _inputs.yaw_from_quaternion
+path_waypoint, MAPLESS_LAYOUT = _inputs.path_waypoint, _inputs.MAPLESS_LAYOUT
 
 
 # ----------------------------------------------------------------------------- the actor
@@ -205,14 +209,15 @@ INPUT_LAYER = {"heads": "hidden_0", "squashed": "hidden_0", "gru": "embed"}
 STOP = np.zeros(2, np.float32)  # the command for an observation that cannot be trusted: v = omega = 0
 
 
-def check_observation(obs, obs_size: int) -> tuple[np.ndarray, np.ndarray]:
+def check_observation(obs, obs_size: int, layout=MAPLESS_LAYOUT) -> tuple[np.ndarray, np.ndarray]:
     """(obs float32[..., obs_size] with its unsafe rows zeroed, so that a batch's pass stays finite;
-    unsafe bool[...]: a NaN or +-inf, float32's, in the row). Another length: a ValueError."""
+    unsafe bool[...]: a NaN or +-inf, float32's, in the row). Another length: a ValueError naming
+    the entries (`layout`: the names after the ranges, meta.json's "observation_layout")."""
     with np.errstate(over="ignore"):  # a float64 beyond float32 becomes inf: unsafe
         x = np.asarray(obs, np.float32)
     if x.ndim == 0 or x.shape[-1] != obs_size:
         got = "a scalar" if x.ndim == 0 else f"{x.shape[-1]} entries (shape {list(x.shape)})"
-        what = "num_beams ranges, goal distance, goal bearing, previous action v and omega"
+        what = ", ".join(["num_beams ranges", *(name.replace("_", " ") for name in layout)])
         raise ValueError(f"an observation has {obs_size} entries ({what}); got {got}")
     unsafe = ~np.all(np.isfinite(x), axis=-1)
     return np.where(unsafe[..., None], np.float32(0.0), x), unsafe
@@ -275,12 +280,16 @@ class Policy:
         self.omega_max = float(self.meta["omega_max"])
         self.dt = float(self.meta.get("dt", 0.1))
         self.goal_radius = float(self.meta.get("goal_radius", 0.5))
-        self.obs_size = self.num_beams + 4
+        self.layout = tuple(self.meta.get("observation_layout", MAPLESS_LAYOUT))  # the entries after the ranges
+        plan = self.meta.get("plan")  # a run with env.plan: true (docs/export.md, "Exporting a plan run")
+        self.lookahead = float(plan["lookahead"]) if plan else None  # m down the path to the waypoint
+        self.path = None  # the planner's path (`follow`)
+        self.obs_size = self.num_beams + len(self.layout)
         k = self.weights[f"{INPUT_LAYER[self.kind]}/kernel"]
         if k.shape[0] != self.obs_size:
             raise ValueError(
                 f"{self.folder}: weights take {k.shape[0]} inputs, meta.json says "
-                f"num_beams={self.num_beams} (obs size {self.obs_size})"
+                f"num_beams={self.num_beams} and {len(self.layout)} more entries (obs size {self.obs_size})"
             )
         self.memory_size = int(self.weights["gru/hn/kernel"].shape[0]) if self.kind == "gru" else 0  # 0: none
         self.reset()
@@ -294,7 +303,7 @@ class Policy:
     def __call__(self, obs) -> np.ndarray:
         """obs float32[..., obs_size] -> action float32[..., 2] in network units (the class docstring
         for the state and unsafe rows); another length is a ValueError (`check_observation`)."""
-        x, unsafe = check_observation(obs, self.obs_size)
+        x, unsafe = check_observation(obs, self.obs_size, self.layout)
         lead = x.shape[:-1]
         h = self.states.get(lead, np.zeros((*lead, self.memory_size), np.float32))
         with np.errstate(over="ignore", invalid="ignore"):  # a huge input may overflow: stopped below
@@ -336,11 +345,22 @@ class Policy:
             mode,
         )
 
-    def observation(self, ranges, pose, goal, prev_action=(0.0, 0.0)) -> np.ndarray:
+    def follow(self, path) -> None:
+        """A policy trained with the plan: the planner's path float[n, 2] (x, y in the pose's frame;
+        None: none), whose waypoint (`path_waypoint`, the run's lookahead) `observation` then takes."""
+        if self.lookahead is None:
+            raise ValueError(f"{self.folder}: follow: a mapless policy (meta.json has no plan) takes no path")
+        self.path = None if path is None else np.asarray(path, np.float64).reshape(-1, 2)
+
+    def observation(self, ranges, pose, goal, prev_action=(0.0, 0.0), waypoint=None) -> np.ndarray:
+        """`build_observation` with this policy's layout; a plan policy's waypoint is `waypoint`,
+        else the one of the path given to `follow` at `pose` (one robot)."""
         ranges = np.asarray(ranges, np.float32)
         if ranges.shape[-1] != self.num_beams:
             raise ValueError(f"expected {self.num_beams} ranges, got {ranges.shape[-1]} (pool the scan first)")
-        return build_observation(ranges, pose, goal, prev_action)
+        if waypoint is None and self.path is not None:
+            waypoint = path_waypoint(self.path, pose, self.lookahead)
+        return build_observation(ranges, pose, goal, prev_action, waypoint, self.layout)
 
     def velocity(self, action) -> tuple[float, float]:
         return action_to_velocity(action, self.v_max, self.omega_max)
@@ -352,5 +372,5 @@ class Policy:
 
 if __name__ == "__main__":  # a smoke test: python policy.py
     p = Policy()
-    obs = p.observation(np.full(p.num_beams, p.max_range), (0.0, 0.0, 0.0), (1.0, 0.5))
+    obs = p.observation(np.full(p.num_beams, p.max_range), (0.0, 0.0, 0.0), (1.0, 0.5), waypoint=(0.5, 0.25))
     print(json.dumps({"obs": [round(float(v), 4) for v in obs], "action": [float(v) for v in p(obs)]}))
