@@ -15,12 +15,15 @@ Two layouts of the same batch:
 - per-pose: every pose carries its own copy of its room's arrays (in_axes=0), the layout of
             `fedjax-nav bench env` and of a per-robot vmap.
 
+Programs: the default (`method="auto"`: unrolled for the thesis rooms, chunked above 80 rows) and,
+in the rooms above 80 rows, `method="culled"` (fedjax_nav/env/cull.py) beside it in the same run.
+
 Throughput is timed in one process with the variants alternated, `--repeats` times, median
 reported (the machine is shared). Compile time and peak memory come from one fresh subprocess per
 variant (no compilation cache): its peak RSS while compiling and running once (VmHWM, reset just
 before compiling), and how much that is above its RSS before compiling.
 
-    python scripts/bench_dense.py                      # the table of docs/dense_rooms.md
+    python scripts/bench_dense.py                      # the table of docs/dense_rooms.md (+ culled rows)
     python scripts/bench_dense.py --old                # + the unrolled program on dense rooms
     python scripts/bench_dense.py --sweep              # unrolled vs chunked by row count
     python scripts/bench_dense.py --record docs/dense_rooms.md
@@ -323,6 +326,34 @@ def report_end(out: list[str], script: str, record: str | None) -> None:
             fh.write(f"\n### {time.strftime('%Y-%m-%d %H:%M')} — `scripts/{script}`\n\n{text}\n")
 
 
+def methods_of(stacked, no_culled: bool) -> list[str]:
+    """The programs timed in a room: the default (auto), and the culled one where auto chunks."""
+    m, c = rows_of(stacked)
+    return ["auto"] + ([] if no_culled or m + c <= geometry.UNROLL_MAX_ROWS else ["culled"])
+
+
+def table_row(variant, stacked, batch: int, t: dict, cpu: dict, mem: dict) -> str:
+    """One row of the main table; ratios against the thesis rooms' default program, same layout."""
+    r, lay, meth = variant
+    m, c = rows_of(stacked)
+    path = meth if meth != "auto" else ("unrolled" if m + c <= geometry.UNROLL_MAX_ROWS else "chunked")
+    ref = ("thesis", lay, "auto")
+    rel = f"{t[ref] / t[variant]:.2f}x" if ref in t else ""
+    rel_cpu = f"{cpu[ref] / cpu[variant]:.2f}x" if ref in cpu else ""
+    mm = mem.get(variant)
+    if mm is None:
+        comp, rss = "", ""
+    elif "killed_for" in mm:
+        comp, rss = f"killed ({mm['killed_for']})", f"{mm['rss_peak_mb']:.0f}"
+    else:
+        comp = f"{mm['compile_s']:.2f}"
+        rss = f"{mm['rss_peak_mb']:.0f} (+{mm['rss_peak_mb'] - mm['rss_before_mb']:.0f})"
+    return (
+        f"| {r} | {m + c} ({m} + {c}) | {path} | {lay} | {comp} | {batch / t[variant]:,.0f} | {rel} | "
+        f"{batch / cpu[variant]:,.0f} | {rel_cpu} | {rss} |"
+    )
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--batch", type=int, default=4096)
@@ -330,6 +361,7 @@ def main(argv=None):
     ap.add_argument("--rooms", default=",".join(ROOMS))
     ap.add_argument("--layouts", default=",".join(LAYOUTS))
     ap.add_argument("--no-memory", action="store_true", help="skip the compile/memory subprocesses")
+    ap.add_argument("--no-culled", action="store_true", help="skip the culled program's rows")
     ap.add_argument(
         "--old",
         action="store_true",
@@ -351,47 +383,22 @@ def main(argv=None):
     out = report_head("bench_dense.py", argv)
 
     stacks = {r: build_rooms(r) for r in rooms}
-    cases = {}
-    for r in rooms:
-        for lay in layouts:
-            cases[(r, lay)] = make_case(r, lay, a.batch, stacked=stacks[r])
+    variants = [(r, lay, meth) for r in rooms for meth in methods_of(stacks[r], a.no_culled) for lay in layouts]
+    cases = {v: make_case(v[0], v[1], a.batch, v[2], stacked=stacks[v[0]]) for v in variants}
     t, cpu = throughput(cases, a.repeats)
-    mem = {}
-    if not a.no_memory:
-        for r in rooms:
-            for lay in layouts:
-                mem[(r, lay)] = run_child(r, lay, a.batch, "auto", timeout=600.0)
-    ref = {lay: t[("thesis", lay)] for lay in layouts if ("thesis", lay) in t}
-    ref_cpu = {lay: cpu[("thesis", lay)] for lay in layouts if ("thesis", lay) in cpu}
+    mem = {} if a.no_memory else {v: run_child(*v[:2], a.batch, v[2], timeout=600.0) for v in variants}
     out += [
         f"Batch {a.batch} poses; one step = one {NUM_BEAMS}-beam cast + one nearest_distance per pose; "
         f"median of {a.repeats} alternated repeats (wall time, and CPU time of all threads); vs thesis: "
         "same layout. Compile and peak RSS: one fresh process per row (peak RSS while compiling and running "
-        "once; in brackets: above the RSS before compiling).",
+        'once; in brackets: above the RSS before compiling). Path culled: `method="culled"` '
+        '(docs/dense_rooms.md, "Culling per tile"), bitwise the chunked loop.',
         "",
         "| room | rows (M + C) | path | layout | compile s | steps/s | vs thesis | steps per CPU-s | vs thesis "
         "| peak RSS MB (+ over before) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in rooms:
-        m, c = rows_of(stacks[r])
-        path = "unrolled" if m + c <= geometry.UNROLL_MAX_ROWS else "chunked"
-        for lay in layouts:
-            sps, spc = a.batch / t[(r, lay)], a.batch / cpu[(r, lay)]
-            rel = f"{ref[lay] / t[(r, lay)]:.2f}x" if lay in ref else ""
-            rel_cpu = f"{ref_cpu[lay] / cpu[(r, lay)]:.2f}x" if lay in ref_cpu else ""
-            if (r, lay) in mem and "killed_for" in mem[(r, lay)]:
-                comp, rss = f"killed ({mem[(r, lay)]['killed_for']})", f"{mem[(r, lay)]['rss_peak_mb']:.0f}"
-            elif (r, lay) in mem:
-                mm = mem[(r, lay)]
-                comp = f"{mm['compile_s']:.2f}"
-                rss = f"{mm['rss_peak_mb']:.0f} (+{mm['rss_peak_mb'] - mm['rss_before_mb']:.0f})"
-            else:
-                comp, rss = "", ""
-            out.append(
-                f"| {r} | {m + c} ({m} + {c}) | {path} | {lay} | {comp} | {sps:,.0f} | {rel} | "
-                f"{spc:,.0f} | {rel_cpu} | {rss} |"
-            )
+    out += [table_row(v, stacks[v[0]], a.batch, t, cpu, mem) for v in variants]
     if a.old:
         out += [
             "",
