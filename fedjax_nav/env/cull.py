@@ -1,4 +1,4 @@
-"""Culled lidar and clearance for many poses in one shared room (docs/dense_rooms.md, "Culling").
+"""Culled lidar and clearance for many poses in one shared room (docs/dense_rooms.md, "Culling per tile").
 
 `geometry.lidar(..., method="culled")` and `geometry.nearest_distance(..., method="culled")` land
 here. For one pose, and under a `vmap` whose room is batched with its poses (the per-pose layout),
@@ -24,7 +24,10 @@ visited in the chunked loop's order. Segment hits are kept as fractions within a
 at its end (geometry), so segments are culled per chunk (window) of the chunked loop, whole windows
 kept or skipped, and circles row by row. A clearance farther than `NEAREST_RADIUS` is not covered
 by the candidates: such a tile is measured again by the chunked loop over every row (`lax.cond`).
-Results are bitwise those of the chunked loop (tests/test_cull.py).
+Results are bitwise those of the chunked loop (tests/test_cull.py), which took two more things of
+the compiled program: the beams are read inside the tile loop from the [N, num_beams] arrays the
+chunked loop computes, and rows of a kind that fit in one chunk (cast with no loop by the chunked
+program) are cast for every pose the same way, outside the tiles (docs/dense_rooms.md).
 """
 
 from __future__ import annotations
