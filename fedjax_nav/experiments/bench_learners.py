@@ -43,7 +43,7 @@ def ppo_config(method: str):
     return _train_config([*over, *PROCEDURAL], "ppo")
 
 
-def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 6)):
+def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 16)):
     """brax's own `ppo.train` on this project's brax env (the thesis's training rooms, one per
     environment in turn), with the batch of the PPO row: `num_envs` environments, `rollout`-step
     unrolls, `epochs` x `minibatches`, the same 64x2 tanh networks. brax's `training/sps` of an
@@ -178,7 +178,7 @@ def bench_learners(
         out += bench_env(batches=(env_batch,), steps=200)
         out += bench_env(batches=(env_batch,), steps=200, family="mixture")
     if env_batch and brax:
-        out += bench_brax_ppo(num_envs=env_batch, updates=(2, 6) if env_batch >= 1024 else (4, 12))
+        out += bench_brax_ppo(num_envs=env_batch, updates=(2, 16) if env_batch >= 1024 else (4, 12))
         if any(r.get("vs_brax") == "sac" for r in out):
             out += bench_brax_sac()
         out += brax_ratios(out)
