@@ -326,3 +326,22 @@ def test_the_arena_crossing_drives_robot_i_from_start_i_to_goal_i(untrained, cap
     starts, goals = np.asarray(w.starts)[:, :2], np.asarray(w.goals)
     np.testing.assert_allclose(goals, -0.84 * starts)  # each robot towards the opposite corner: the paths cross
     assert json.loads((out / "shared.json").read_text())["world"] == "eval-crossing"
+
+
+@pytest.mark.full
+def test_out_takes_the_shared_evaluation_elsewhere_and_leaves_the_run_as_it_was(untrained, tmp_path):
+    before = sorted(p.relative_to(untrained) for p in untrained.rglob("*"))
+    argv = ["evaluate", str(untrained), "--world", "eval-crossing", "--robots-per-room", "4", "--attempts", "1"]
+    assert cli.main(argv + ["--max-steps", "16", "--no-figures", "--out", str(tmp_path / "x")]) == 0
+    assert len(pd.read_csv(tmp_path / "x" / "shared_episodes.csv")) == 1 * 2 * 4  # attempts x agents x robots
+    assert sorted(p.relative_to(untrained) for p in untrained.rglob("*") if p.name != ".lock") == [
+        p for p in before if p.name != ".lock"
+    ]
+
+
+def test_out_with_several_runs_in_shared_rooms_is_one_line(untrained, tmp_path, capfd):
+    argv = ["evaluate", str(untrained), str(untrained), "--world", "eval-crossing", "--robots-per-room", "4"]
+    assert cli.main(argv + ["--out", str(tmp_path / "x")]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0], err
+    assert not (tmp_path / "x").exists()

@@ -129,7 +129,9 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
                 raise UserError("--robot: not with --robots-per-room (shared rooms run the run's own robot model)")
             from fedjax_nav.evaluation.shared_rooms import evaluate_shared_runs
 
-            kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps", "attempts")}
+            if args.out is not None and len(args.run_dirs) > 1:
+                raise UserError("--out: with --robots-per-room it names one run's folder; evaluate the runs one by one")
+            kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps", "attempts", "out")}
             if not getattr(args, "suite", None):  # a world's own starts and goals, robot i: start i -> goal i
                 kw["world"] = args.world
             evaluate_shared_runs(args.run_dirs, args.suite, args.robots_per_room, figures=not args.no_figures, **kw)

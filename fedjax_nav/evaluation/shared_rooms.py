@@ -270,13 +270,16 @@ def shared_dir(run_dir, suite: str | None, world: str | None = None) -> Path:
     return rundir.eval_dir(run_dir, f"{name}{rundir.SHARED_SUFFIX}")
 
 
-def evaluate_shared_runs(run_dirs, suite: str | None, robots_per_room, echo=print, figures: bool = True, **kw):
-    """`evaluate_shared` of every run, written to RUN/eval/<suite or world>-shared/, a line per K."""
+def evaluate_shared_runs(
+    run_dirs, suite: str | None, robots_per_room, echo=print, figures: bool = True, out=None, **kw
+):
+    """`evaluate_shared` of every run, written to RUN/eval/<suite or world>-shared/ (or `out`, for
+    one run), a line per K."""
     done = []
     for run_dir in run_dirs:
         result = evaluate_shared(run_dir, suite, robots_per_room, **kw)
-        out = shared_dir(run_dir, suite, kw.get("world"))
-        write_shared(result, out)
+        folder = Path(out) if out is not None else shared_dir(run_dir, suite, kw.get("world"))
+        write_shared(result, folder)
         for row in result["families"].to_dict(orient="records"):
             if row["family"] == "all":
                 echo(
@@ -286,8 +289,8 @@ def evaluate_shared_runs(run_dirs, suite: str | None, robots_per_room, echo=prin
                     f"time-out {row['timeout']:.3f}, deadlock {row['deadlock']:.3f}"
                 )
         if figures:
-            shared_figure(run_dir, suite, max(result["summary"]["robots_per_room"]), out, **kw)
-        echo(f"wrote {out}/ ({json.dumps(result['summary']['robots_per_room'])} robots per room)")
+            shared_figure(run_dir, suite, max(result["summary"]["robots_per_room"]), folder, **kw)
+        echo(f"wrote {folder}/ ({json.dumps(result['summary']['robots_per_room'])} robots per room)")
         done.append(result["summary"])
     return done
 
