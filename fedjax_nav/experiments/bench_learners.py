@@ -178,11 +178,18 @@ def bench_learners(
         out += bench_env(batches=(env_batch,), steps=200)
         out += bench_env(batches=(env_batch,), steps=200, family="mixture")
     if env_batch and brax:
-        out += bench_brax_ppo(num_envs=env_batch, updates=(2, 16) if env_batch >= 1024 else (4, 12))
-        if any(r.get("vs_brax") == "sac" for r in out):
-            out += bench_brax_sac()
+        # brax's trainer of each algorithm some row runs (LEARNER_ROWS' third field), once
+        for algo in dict.fromkeys(r["vs_brax"] for r in out if r.get("vs_brax")):
+            out += BRAX_TRAINERS[algo](env_batch)
         out += brax_ratios(out)
     return out
+
+
+# brax's own trainer of each algorithm a row may be compared with, given the env batch of the PPO rows
+BRAX_TRAINERS = {
+    "ppo": lambda env_batch: bench_brax_ppo(num_envs=env_batch, updates=(2, 16) if env_batch >= 1024 else (4, 12)),
+    "sac": lambda env_batch: bench_brax_sac(),  # its own batch: one network x 64 environments (SAC_AS_BRAX)
+}
 
 
 def brax_ratios(rows: list[dict]) -> list[dict]:
