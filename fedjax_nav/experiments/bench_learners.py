@@ -43,30 +43,22 @@ def ppo_config(method: str):
     return _train_config([*over, *PROCEDURAL], "ppo")
 
 
-def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 16)):
-    """brax's own `ppo.train` on this project's brax env (the thesis's training rooms, one per
-    environment in turn), with the batch of the PPO row: `num_envs` environments, `rollout`-step
-    unrolls, `epochs` x `minibatches`, the same 64x2 tanh networks. brax's `training/sps` of an
-    epoch includes a fixed cost per epoch (about 6 s here, whatever the epoch's length), so it is
-    run with two epoch lengths (`updates` training steps per epoch) and the steady rate is the
-    difference of steps over the difference of epoch times; brax's own figure for the longer epoch
-    is reported beside it."""
+def _brax_env():
+    """This project's brax env in the thesis's training rooms (one per environment in turn)."""
     from brax import envs as brax_envs
-    from brax.training.agents.ppo import networks as ppo_networks
-    from brax.training.agents.ppo import train as ppo
-    from flax import linen
 
     from fedjax_nav import worlds
     from fedjax_nav.env import brax_env  # noqa: F401  (registers the env)
 
-    env = brax_envs.get_environment(brax_env.ENV_NAME, worlds=list(worlds.THESIS_TRAIN))
-    per_update = num_envs * rollout
-    net = functools.partial(
-        ppo_networks.make_ppo_networks,
-        policy_hidden_layer_sizes=(64, 64),
-        value_hidden_layer_sizes=(64, 64),
-        activation=linen.tanh,
-    )
+    return brax_envs.get_environment(brax_env.ENV_NAME, worlds=list(worlds.THESIS_TRAIN))
+
+
+def _steady_rate(train, per_update: int, updates) -> dict:
+    """brax's steady rate of a trainer whose epochs also pay a fixed cost: `train(u, progress_fn)`
+    runs two epochs of u training steps of `per_update` agent-steps each, for each u of `updates`;
+    the second epoch of each (compiled in the first) is timed by brax's `training/walltime`, and
+    the steady rate is the difference of steps over the difference of those epochs' times.
+    Returns it with brax's own `training/sps` of the last epoch and the fixed cost per epoch."""
     epoch_s, sps = [], []
     for u in updates:
         walls: list[float] = []
@@ -76,6 +68,36 @@ def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 
                 walls.append(float(metrics["training/walltime"]))
                 sps.append(float(metrics["training/sps"]))
 
+        train(u, progress)
+        epoch_s.append(walls[-1] - walls[-2])
+    steady = per_update * (updates[1] - updates[0]) / (epoch_s[1] - epoch_s[0])
+    return {
+        "agent_steps_per_s": steady,
+        "brax_sps": sps[-1],
+        "epoch_fixed_s": epoch_s[0] - per_update * updates[0] / steady,
+    }
+
+
+def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 4, epochs: int = 4, updates=(2, 16)):
+    """brax's own `ppo.train` on this project's brax env (the thesis's training rooms, one per
+    environment in turn), with the batch of the PPO row: `num_envs` environments, `rollout`-step
+    unrolls, `epochs` x `minibatches`, the same 64x2 tanh networks. brax's `training/sps` of an
+    epoch includes a fixed cost per epoch (about 5-6 s here, whatever the epoch's length), so it is
+    run with two epoch lengths (`updates` training steps per epoch, `_steady_rate`); brax's own
+    figure for the longer epoch is reported beside it."""
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo
+    from flax import linen
+
+    env, per_update = _brax_env(), num_envs * rollout
+    net = functools.partial(
+        ppo_networks.make_ppo_networks,
+        policy_hidden_layer_sizes=(64, 64),
+        value_hidden_layer_sizes=(64, 64),
+        activation=linen.tanh,
+    )
+
+    def train(u, progress):
         ppo.train(
             env,
             num_timesteps=per_update * u * 2,  # two epochs of u training steps (num_evals - 1)
@@ -92,18 +114,8 @@ def bench_brax_ppo(num_envs: int = 1280, rollout: int = 128, minibatches: int = 
             network_factory=net,
             progress_fn=progress,
         )
-        epoch_s.append(walls[-1] - walls[-2])  # the second epoch: compiled in the first
-    steady = per_update * (updates[1] - updates[0]) / (epoch_s[1] - epoch_s[0])
-    return [
-        {
-            "bench": "brax_ppo",
-            "num_envs": num_envs,
-            "rollout": rollout,
-            "agent_steps_per_s": steady,
-            "brax_sps": sps[-1],
-            "epoch_fixed_s": epoch_s[0] - per_update * updates[0] / steady,
-        }
-    ]
+
+    return [{"bench": "brax_ppo", "num_envs": num_envs, "rollout": rollout, **_steady_rate(train, per_update, updates)}]
 
 
 def bench_brax_sac(
@@ -113,26 +125,15 @@ def bench_brax_sac(
     network of the SAC row: `num_envs` environments, one gradient step of `batch` rows per
     environment step (the row's update-to-data ratio), the same relu networks (`hidden`: the
     row's width x depth), gamma 0.99, lr 1e-3, tau 0.005, a `buffer`-row replay. As for PPO the
-    steady rate is two epoch lengths (`updates` training steps) differenced; brax also evaluates
-    after each epoch, outside its timed epoch (one evaluation environment here)."""
-    from brax import envs as brax_envs
+    steady rate is two epoch lengths differenced (`_steady_rate`); brax also evaluates after each
+    epoch, outside its timed epoch (one evaluation environment here)."""
     from brax.training.agents.sac import networks as sac_networks
     from brax.training.agents.sac import train as sac
 
-    from fedjax_nav import worlds
-    from fedjax_nav.env import brax_env  # noqa: F401  (registers the env)
-
-    env = brax_envs.get_environment(brax_env.ENV_NAME, worlds=list(worlds.THESIS_TRAIN))
+    env = _brax_env()
     net = functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=tuple(hidden))
-    epoch_s, sps = [], []
-    for u in updates:
-        walls: list[float] = []
 
-        def progress(step, metrics, walls=walls):
-            if "training/walltime" in metrics:
-                walls.append(float(metrics["training/walltime"]))
-                sps.append(float(metrics["training/sps"]))
-
+    def train(u, progress):
         sac.train(
             env,
             num_timesteps=batch + num_envs * u * 2,  # the prefill, then two epochs of u training steps
@@ -150,18 +151,8 @@ def bench_brax_sac(
             network_factory=net,
             progress_fn=progress,
         )
-        epoch_s.append(walls[-1] - walls[-2])  # the second epoch: compiled in the first
-    steady = num_envs * (updates[1] - updates[0]) / (epoch_s[1] - epoch_s[0])
-    return [
-        {
-            "bench": "brax_sac",
-            "num_envs": num_envs,
-            "batch": batch,
-            "agent_steps_per_s": steady,
-            "brax_sps": sps[-1],
-            "epoch_fixed_s": epoch_s[0] - num_envs * updates[0] / steady,
-        }
-    ]
+
+    return [{"bench": "brax_sac", "num_envs": num_envs, "batch": batch, **_steady_rate(train, num_envs, updates)}]
 
 
 def bench_learners(
