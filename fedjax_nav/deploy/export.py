@@ -8,7 +8,7 @@ default: the run's first seed, config run.seed). --agent K: the network within t
 
 numpy: DIR/weights.npz + DIR/policy.py (policy_template.py: the actor in numpy, no JAX) +
 DIR/policy_inputs.py (the observation functions, which policy.py loads) + DIR/meta.json.
-onnx:  DIR/policy.onnx (input "obs" float32[batch, num_beams + 4], output "action"
+onnx:  DIR/policy.onnx (input "obs" float32[batch, num_beams + 4], + 5 with the plan, output "action"
 float32[batch, 2]; a recurrent policy also takes "h" float32[batch, gru] and returns "h_out")
 + DIR/meta.json + DIR/policy.py and DIR/policy_inputs.py (for the observation functions; its
 `Policy` class needs the numpy format's weights.npz).
