@@ -29,10 +29,10 @@ from fedjax_nav.config.io import (
     save_config,
     to_dict,
 )
+from fedjax_nav.config.names import LEGACY_ALIASES, canonical, field_info, get, traced_fields, values
 from fedjax_nav.config.schema import (
     ATTACKS,
     LEARNERS,
-    LEGACY_ALIASES,
     METHODS,
     ROBOT_MODELS,
     ROBUST_AGGREGATORS,
@@ -51,11 +51,6 @@ from fedjax_nav.config.schema import (
     RunConfig,
     SACConfig,
     TD3Config,
-    canonical,
-    field_info,
-    get,
-    traced_fields,
-    values,
 )
 from fedjax_nav.config.validate import from_dict, resolve_aliases
 

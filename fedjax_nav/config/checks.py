@@ -5,13 +5,8 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from fedjax_nav.config.schema import (
-    ROOM_FAMILIES,
-    Config,
-    ConfigError,
-    get,
-    robot_problem,
-)
+from fedjax_nav.config.names import get
+from fedjax_nav.config.schema import ROOM_FAMILIES, Config, ConfigError, robot_problem
 from fedjax_nav.learner_table import get as learner_row
 from fedjax_nav.learner_table import off_policy
 from fedjax_nav.messages import show

@@ -21,7 +21,8 @@ trainer and the evaluations build from it, and evaluation reads runs without imp
 from __future__ import annotations
 
 from fedjax_nav import worlds
-from fedjax_nav.config.schema import Config, get, traced_fields
+from fedjax_nav.config.names import get, traced_fields
+from fedjax_nav.config.schema import Config
 from fedjax_nav.env.nav import EnvParams, NavEnv, make_params
 
 ENV_PREFIXES = ("env.", "robot.")  # the sections whose traced fields may be EnvParams fields

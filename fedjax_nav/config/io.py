@@ -9,7 +9,8 @@ from typing import Any
 
 import yaml
 
-from fedjax_nav.config.schema import LEGACY_ALIASES, SECTIONS, TOP_LEVEL, Config, ConfigError, canonical
+from fedjax_nav.config.names import LEGACY_ALIASES, canonical
+from fedjax_nav.config.schema import SECTIONS, TOP_LEVEL, Config, ConfigError
 from fedjax_nav.config.validate import from_dict
 from fedjax_nav.messages import shorten, show
 
@@ -37,7 +38,7 @@ def apply_overrides(data: dict, overrides: list[str], src: str = "--set", base: 
     file) in errors about `data` itself (not a mapping, a section that is not one): `src` if None.
 
     An offpolicy field's override replaces it under both its names (`offpolicy.gamma` and its old
-    name `ddpg.gamma`, schema.LEGACY_ALIASES) and is kept under the name it was given, which
+    name `ddpg.gamma`, names.LEGACY_ALIASES) and is kept under the name it was given, which
     `from_dict` then reads and names in its messages."""
     import copy
 

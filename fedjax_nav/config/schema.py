@@ -6,8 +6,7 @@ package's `__init__` imports them and none of them imports it back (tests/test_l
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 from fedjax_nav.learner_table import NAMES as LEARNERS  # the `learner` choices: the learner table's names
 from fedjax_nav.methods import METHODS as _METHOD_TABLE
@@ -380,52 +379,3 @@ SECTIONS = {
     "robot": RobotConfig,
 }
 TOP_LEVEL = ("method", "learner")  # the fields outside the sections
-
-# The off-policy settings lived in the ddpg section until the offpolicy section held them. Each
-# keeps its old name `ddpg.<field>` as an alias wherever a field is written: a config file, a run's
-# saved config.yaml, `--set`, a sweep file's keys and `set:` (docs/learners.md, "Configuration").
-# Derived, not listed: every field of OffPolicyConfig was a field of the ddpg section, and no field
-# of DDPGConfig shares a name with one (tests/test_config.py). Point ids hash the old names
-# (config.sweepfile.point_id), so that every finished run keeps its id.
-LEGACY_ALIASES = {f"ddpg.{f.name}": f"offpolicy.{f.name}" for f in fields(OffPolicyConfig)}
-
-
-def canonical(dotted: str) -> str:
-    """The field a dotted name means: `offpolicy.<field>` for its old name `ddpg.<field>`
-    (LEGACY_ALIASES); any other name as it is."""
-    return LEGACY_ALIASES.get(dotted, dotted)
-
-
-def traced_fields() -> tuple[str, ...]:
-    """Dotted names of the fields that are JAX values (sweepable in one compilation): exactly the
-    fields declared with `traced=True`."""
-    return tuple(f"{s}.{f.name}" for s, cls in SECTIONS.items() for f in fields(cls) if f.metadata.get("traced"))
-
-
-def field_info(dotted: str) -> dataclasses.Field:
-    """The dataclass field behind a dotted name ("offpolicy.gamma", its old name "ddpg.gamma", or
-    "method" / "learner")."""
-    dotted = canonical(dotted)
-    if dotted in TOP_LEVEL:
-        return {f.name: f for f in fields(Config)}[dotted]
-    section, name = dotted.split(".")
-    return {f.name: f for f in fields(SECTIONS[section])}[name]
-
-
-def get(cfg: Config, dotted: str):
-    """The value of a dotted name ("offpolicy.gamma", its old name "ddpg.gamma", or "method" /
-    "learner")."""
-    dotted = canonical(dotted)
-    if dotted in TOP_LEVEL:
-        return getattr(cfg, dotted)
-    section, name = dotted.split(".")
-    return getattr(getattr(cfg, section), name)
-
-
-def values(cfg: Config) -> dict:
-    """Every field's value by dotted name ({"learner": "ddpg", "offpolicy.hidden": 64, ...}): what a
-    learner's `make_nets` reads its static sizes from (the agents layer does not import config)."""
-    out = {name: getattr(cfg, name) for name in TOP_LEVEL}
-    for s, cls in SECTIONS.items():
-        out.update({f"{s}.{f.name}": getattr(getattr(cfg, s), f.name) for f in fields(cls)})
-    return out

@@ -64,7 +64,7 @@ from fedjax_nav.messages import show
 # Fields that say how a run is kept, not what it computes: they leave a point's id unchanged.
 BOOKKEEPING = ("run.seeds", "run.checkpoint_every", "run.keep_checkpoints", "offpolicy.buffer_alloc", "run.tensorboard")
 # The names point_id hashes a field under: its name when ids were first recorded. The offpolicy
-# fields were the ddpg section's then (schema.LEGACY_ALIASES), so that a finished run keeps its id
+# fields were the ddpg section's then (names.LEGACY_ALIASES), so that a finished run keeps its id
 # and its run directory `points/<id>/` (tests/test_point_ids.py).
 _ID_NAMES = {new: old for old, new in LEGACY_ALIASES.items()}
 # At most this many points per sweep file (the largest shipped one has 33): 300 x 300 took

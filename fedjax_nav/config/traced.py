@@ -24,7 +24,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fedjax_nav.config.schema import SECTIONS, Config, field_info, get, traced_fields
+from fedjax_nav.config.names import field_info, get, traced_fields
+from fedjax_nav.config.schema import SECTIONS, Config
 
 
 def dtype(name: str):

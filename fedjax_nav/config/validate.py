@@ -11,15 +11,8 @@ from dataclasses import fields
 from typing import Any
 
 from fedjax_nav.config.checks import check
-from fedjax_nav.config.schema import (
-    LEGACY_ALIASES,
-    SECTIONS,
-    TOP_LEVEL,
-    Config,
-    ConfigError,
-    canonical,
-    field_info,
-)
+from fedjax_nav.config.names import LEGACY_ALIASES, canonical, field_info
+from fedjax_nav.config.schema import SECTIONS, TOP_LEVEL, Config, ConfigError
 from fedjax_nav.messages import show
 
 # ----------------------------------------------------------------------------- validation
@@ -119,7 +112,7 @@ def _build(cls, data: Any, src: str, prefix: str, where, written=None):
 
 
 def resolve_aliases(data: Any, src: str = "<config>", where=None) -> tuple[Any, dict]:
-    """A config mapping with each old name `ddpg.<field>` of an offpolicy field (schema.LEGACY_ALIASES)
+    """A config mapping with each old name `ddpg.<field>` of an offpolicy field (names.LEGACY_ALIASES)
     moved to `offpolicy.<field>` (a copy; `data` is left as it is), and {"offpolicy.<field>": the name
     as written} of the fields moved, so that messages name what the user wrote. A field given under
     both names with different values is one ConfigError naming both (`where(dotted)`: where a
