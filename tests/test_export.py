@@ -96,13 +96,18 @@ def run_dir(tmp_path_factory):
     save_config(cfg, root / "config.yaml")
     keys = jax.random.split(jax.random.key(3), SEEDS * 2)
     per = [random_actor_params(k, HIDDEN, DEPTH, "relu") for k in keys]
-    stacked = jax.tree.map(lambda *xs: np.stack(xs).reshape(SEEDS, 2, *xs[0].shape), *per)
+    write_actor_params(root, per, SEEDS)
+    return root
+
+
+def write_actor_params(root, per: list, seeds: int) -> None:
+    """params.npz of a run whose `seeds` x 2 networks are the actor parameters `per`, in order."""
+    stacked = jax.tree.map(lambda *xs: np.stack(xs).reshape(seeds, 2, *xs[0].shape), *per)
     flat = {
         "actor/" + "/".join(str(getattr(k, "key", k)) for k in kp): np.asarray(leaf)
         for kp, leaf in jax.tree_util.tree_flatten_with_path(stacked)[0]
     }
     np.savez(root / "params.npz", **flat)
-    return root
 
 
 @pytest.fixture(scope="module")

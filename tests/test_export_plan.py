@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_export import HIDDEN, MAX_RANGE, NUM_BEAMS, TOL, _load_template, random_actor_params
+from test_export import HIDDEN, MAX_RANGE, NUM_BEAMS, TOL, _load_template, random_actor_params, write_actor_params
 
 from fedjax_nav import worlds
 from fedjax_nav.config import from_dict, save_config
@@ -49,12 +49,7 @@ def write_run(root, plan: bool):
     save_config(cfg, root / "config.yaml")
     size = OBS if plan else OBS - 1
     per = [random_actor_params(k, HIDDEN, DEPTH, "tanh", size) for k in jax.random.split(jax.random.key(7), 2)]
-    stacked = jax.tree.map(lambda *xs: np.stack(xs).reshape(1, 2, *xs[0].shape), *per)
-    flat = {
-        "actor/" + "/".join(str(getattr(k, "key", k)) for k in kp): np.asarray(leaf)
-        for kp, leaf in jax.tree_util.tree_flatten_with_path(stacked)[0]
-    }
-    np.savez(root / "params.npz", **flat)
+    write_actor_params(root, per, 1)
     return root
 
 
