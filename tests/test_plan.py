@@ -115,7 +115,7 @@ def test_the_waypoint_is_down_the_field_and_the_way_to_it_is_clear(rooms, fields
 def test_the_waypoint_is_the_goal_when_near_cut_off_or_started_in_a_wall():
     world = worlds.load("train-2")
     size, goal = world.size, world.goals[0]
-    field = plan.goal_field(world, goal, D_C, D_G, CELLS)
+    field = plan.goal_field(world, goal, D_C, D_G, CELLS)[0]
     wp = jax.jit(plan.waypoint)
     near = goal + jnp.array([0.6, 0.0])
     assert np.allclose(wp(field, size, goal, near, 1.0), goal)

@@ -155,6 +155,14 @@ class EnvConfig:
     )
     plan_cells: int = _f(64, lo=2, hi=1024, doc="env.plan: grid cells per side of the room (static)")
     plan_lookahead: float = _f(1.0, lo=0.0, hi=1e4, traced=True, doc="env.plan: m down the path to the waypoint")
+    plan_margin: float = _f(
+        0.0,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="env.plan: m beyond the collision distance within which the path's cells cost more, so that "
+        "it keeps from walls where it can (0: the shortest path; docs/planning.md)",
+    )
 
 
 @dataclass(frozen=True)

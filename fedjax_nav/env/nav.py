@@ -65,6 +65,7 @@ class EnvParams:
     footprint: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = collision_distance
     lidar_offset: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m ahead of the centre
     plan_lookahead: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # m; NavEnv(plan=True) only
+    plan_margin: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m; NavEnv(plan=True) only
 
 
 @struct.dataclass

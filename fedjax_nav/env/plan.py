@@ -5,10 +5,11 @@ cells per side, `cells`, so that rooms of any size share one program.
 
     res, xs, ys = grid(size, cells)                      the square cells covering the room
     free = free_cells(world, clearance, cells)           bool[cells, cells]: centres >= D_c from everything
-    field = distance_field(free, seeds, res)             f32[cells, cells]: m to the goal, 8-connected
-    field = goal_field(world, goal, D_c, D_g, cells)     the three above for one goal
-    wp = waypoint(field, size, goal, xy, lookahead)      f32[2]: about `lookahead` m down the field
-    p = make(params, goal, D_c, cells)                   Plan: the field and the waypoint at each start row
+    free, cost = cell_costs(world, D_c, margin, cells)   and each cell's length multiplier (>= 1)
+    field = distance_field(free, seeds, res, cost)       f32[cells, cells]: m to the goal, 8-connected
+    field, cost = goal_field(world, goal, D_c, D_g, cells, margin)   the above for one goal
+    wp = waypoint(field, size, goal, xy, lookahead, cost) f32[2]: about `lookahead` m down the field
+    p = make(params, goal, D_c, cells)                   Plan: the field, the costs, the starts' waypoints
     names = layout(plan)                                 the observation's entries after the ranges
     wp = at(p, params, goal, xy)                         the waypoint with the params' lookahead
 
@@ -17,12 +18,19 @@ The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from th
 collision distance from every segment and circle (`geometry.nearest_distance`, the env's own
 exact distance). Rows are y, columns x: `field[iy, ix]`.
 
+The margin (`env.plan_margin`, m; docs/planning.md, "The margin"): a free cell whose clearance d
+is under D_c + margin costs more to leave, its edges' lengths times
+1 + MARGIN_COST (1 - (d - D_c) / margin), so that the shortest path keeps away from walls where a
+short way round allows; margin 0 (the default) makes every multiplier 1.0 exactly, and the
+field, bit for bit, the plain length below.
+
 The field: the shortest 8-connected path length (edges res and res sqrt 2 between free cells,
-as `evaluation.paths`' Dijkstra) from each free cell into the goal's cells (the free cells
-whose centres lie inside the goal disk, and the goal's own cell when free), +inf where no path
-exists or the cell is not free. It is the fixed point of Bellman's equations, found by
-Gauss-Seidel sweeps (rows upwards, then downwards; each row also closed along itself) in a
-`lax.while_loop` until a pass changes nothing: Dijkstra's distances up to float32 rounding.
+as `evaluation.paths`' Dijkstra; each times the multiplier of the cell it leaves) from each free
+cell into the goal's cells (the free cells whose centres lie inside the goal disk, and the
+goal's own cell when free), +inf where no path exists or the cell is not free. It is the fixed
+point of Bellman's equations, found by Gauss-Seidel sweeps (rows upwards, then downwards; each
+row also closed along itself) in a `lax.while_loop` until a pass changes nothing: Dijkstra's
+distances up to float32 rounding.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ INF = float("inf")
 _DY = (-1, -1, -1, 0, 0, 1, 1, 1)
 _DX = (-1, 0, 1, -1, 1, -1, 0, 1)
 _STEP = tuple(SQRT2 if dy and dx else 1.0 for dy, dx in zip(_DY, _DX))
+MARGIN_COST = 4.0  # a cell at D_c costs 1 + MARGIN_COST times its length; at D_c + margin and beyond, 1
 SIGHT = 16  # points tested on the straight way from the robot to each next cell of the walk
 # The observation's entries after the ranges, by name (`NavEnv.observe` builds them in this order;
 # `fedjax-nav export` writes them to meta.json, where the exported policy reads them: docs/export.md).
@@ -71,15 +80,32 @@ def cell_of(xy: jax.Array, size: jax.Array, cells: int) -> tuple[jax.Array, jax.
     return i[1], i[0]
 
 
-def free_cells(world, clearance: jax.Array, cells: int) -> jax.Array:
-    """bool[cells, cells]: the cells whose centre is inside the room and keeps >= `clearance`
-    from every segment and circle of `world` (one room)."""
+def _clearances(world, cells: int) -> tuple[jax.Array, jax.Array]:
+    """(d f32[cells, cells], inside bool[cells, cells]): each centre's distance to the nearest
+    segment or circle of `world` (one room), and whether it lies inside the room."""
     _, xs, ys = grid(world.size, cells)
     pts = jnp.stack(jnp.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
     d = jax.vmap(lambda p: nearest_distance(world.segments, p, world.circles))(pts).reshape(cells, cells)
     half = world.size / 2
     inside = (jnp.abs(xs)[None, :] < half[0]) & (jnp.abs(ys)[:, None] < half[1])
+    return d, inside
+
+
+def free_cells(world, clearance: jax.Array, cells: int) -> jax.Array:
+    """bool[cells, cells]: the cells whose centre is inside the room and keeps >= `clearance`
+    from every segment and circle of `world` (one room)."""
+    d, inside = _clearances(world, cells)
     return inside & (d >= clearance)
+
+
+def cell_costs(world, clearance: jax.Array, margin: jax.Array, cells: int) -> tuple[jax.Array, jax.Array]:
+    """(free bool[cells, cells], cost f32[cells, cells]): `free_cells`, and each cell's length
+    multiplier: 1 + MARGIN_COST (1 - (d - clearance) / margin) under clearance + margin, else 1;
+    exactly 1.0 everywhere when `margin` is 0."""
+    d, inside = _clearances(world, cells)
+    on = margin > 0
+    near = jnp.clip(1.0 - (d - clearance) / jnp.where(on, margin, 1.0), 0.0, 1.0)
+    return inside & (d >= clearance), 1.0 + MARGIN_COST * jnp.where(on, near, 0.0)
 
 
 def goal_cells(free: jax.Array, size: jax.Array, goal: jax.Array, goal_radius: jax.Array) -> jax.Array:
@@ -103,17 +129,17 @@ def _run_min(v: jax.Array, w: jax.Array) -> jax.Array:
     return lax.associative_scan(compose, (w, v), axis=-1)[1]
 
 
-def _sweep(d: jax.Array, free: jax.Array, res: jax.Array) -> jax.Array:
+def _sweep(d: jax.Array, free: jax.Array, edge: jax.Array) -> jax.Array:
     """One Gauss-Seidel pass over the rows in order: each row takes its three neighbours of the
-    row before (already updated), then is closed along itself (left to right, right to left)."""
-    w = jnp.where(free, res, INF)  # the edge into a cell from its neighbour in the row
-    diag = res * SQRT2
+    row before (already updated), then is closed along itself (left to right, right to left).
+    `edge` f32[cells, cells]: the length of a straight edge out of each cell (res x its cost)."""
+    w = jnp.where(free, edge, INF)  # the edge out of a cell to its neighbour in the row
 
     def row_step(prev, xs):
         row, fr, wr = xs
         left = jnp.concatenate([jnp.full((1,), INF), prev[:-1]])
         right = jnp.concatenate([prev[1:], jnp.full((1,), INF)])
-        row = jnp.minimum(row, jnp.minimum(prev + res, jnp.minimum(left, right) + diag))
+        row = jnp.minimum(row, jnp.minimum(prev + wr, jnp.minimum(left, right) + wr * SQRT2))
         row = jnp.where(fr, row, INF)
         row = _run_min(row, wr)
         row = _run_min(row[::-1], wr[::-1])[::-1]
@@ -122,16 +148,18 @@ def _sweep(d: jax.Array, free: jax.Array, res: jax.Array) -> jax.Array:
     return lax.scan(row_step, jnp.full(d.shape[1:], INF, d.dtype), (d, free, w))[1]
 
 
-def distance_field(free: jax.Array, seeds: jax.Array, res: jax.Array) -> tuple[jax.Array, jax.Array]:
+def distance_field(free: jax.Array, seeds: jax.Array, res: jax.Array, cost=None) -> tuple[jax.Array, jax.Array]:
     """(field f32[cells, cells], passes i32[]): m from every free cell to the nearest seed cell
-    along 8-connected free cells; +inf when not free or cut off. Passes (up and down) until one
+    along 8-connected free cells, each edge's length times the cost (f32[cells, cells], >= 1; None:
+    1) of the cell it leaves; +inf when not free or cut off. Passes (up and down) until one
     changes nothing; at most cells^2 (a path visits each cell once)."""
     d0 = jnp.where(seeds & free, 0.0, INF).astype(jnp.float32)
     res = jnp.asarray(res, jnp.float32)
+    edge = jnp.broadcast_to(res if cost is None else res * cost, free.shape)
 
     def one_pass(d):
-        d = _sweep(d, free, res)
-        return _sweep(d[::-1], free[::-1], res)[::-1]
+        d = _sweep(d, free, edge)
+        return _sweep(d[::-1], free[::-1], edge[::-1])[::-1]
 
     def cond(c):
         _, changed, n = c
@@ -146,12 +174,12 @@ def distance_field(free: jax.Array, seeds: jax.Array, res: jax.Array) -> tuple[j
     return d, n
 
 
-def goal_field(world, goal: jax.Array, clearance: jax.Array, goal_radius: jax.Array, cells: int) -> jax.Array:
-    """f32[cells, cells]: the distance field to `goal` in `world` (one room) on the grid
-    inflated by `clearance` (D_c)."""
-    free = free_cells(world, clearance, cells)
+def goal_field(world, goal, clearance, goal_radius, cells: int, margin=0.0) -> tuple[jax.Array, jax.Array]:
+    """(field, cost), f32[cells, cells] each: the distance field to `goal` in `world` (one room)
+    on the grid inflated by `clearance` (D_c), its cells' costs by `margin` (`cell_costs`)."""
+    free, cost = cell_costs(world, clearance, jnp.asarray(margin, jnp.float32), cells)
     res, _, _ = grid(world.size, cells)
-    return distance_field(free, goal_cells(free, world.size, goal, goal_radius), res)[0]
+    return distance_field(free, goal_cells(free, world.size, goal, goal_radius), res, cost)[0], cost
 
 
 def _neighbours(field: jax.Array, iy: jax.Array, ix: jax.Array):
@@ -164,17 +192,17 @@ def _neighbours(field: jax.Array, iy: jax.Array, ix: jax.Array):
     return jnp.where(on, field[ny, nx], INF), ny, nx, jnp.array(_STEP, jnp.float32)
 
 
-def waypoint(field: jax.Array, size: jax.Array, goal: jax.Array, xy: jax.Array, lookahead: jax.Array) -> jax.Array:
+def waypoint(field: jax.Array, size, goal: jax.Array, xy: jax.Array, lookahead: jax.Array, cost=None) -> jax.Array:
     """f32[2]: the point about `lookahead` m down the field from the robot at `xy`, in its sight.
 
     From the robot's cell (not free: its best free neighbour) the walk steps to the neighbour
-    that the shortest path takes (least value + edge) while it has walked less than `lookahead`,
-    is not in the goal's cells and the next cell's centre stays in sight: every one of `SIGHT`
-    points on the straight way from `xy` to it lies in a free cell (the robot's own cell aside),
-    so that the way to the waypoint keeps D_c up to half a cell's diagonal. The waypoint is the
-    last cell's centre; the goal itself when the robot's path to the goal is at most `lookahead`,
-    or when there is no path (the walk never fails: a robot cut off from its goal sees the goal,
-    as without the plan)."""
+    that the shortest path takes (least value + edge, the edge times the cell's `cost`; None: 1)
+    while it has walked less than `lookahead`, is not in the goal's cells and the next cell's
+    centre stays in sight: every one of `SIGHT` points on the straight way from `xy` to it lies
+    in a free cell (the robot's own cell aside), so that the way to the waypoint keeps D_c up to
+    half a cell's diagonal. The waypoint is the last cell's centre; the goal itself when the
+    robot's path to the goal is at most `lookahead`, or when there is no path (the walk never
+    fails: a robot cut off from its goal sees the goal, as without the plan)."""
     cells = field.shape[0]
     res, xs, ys = grid(size, cells)
     y0, x0 = cell_of(xy, size, cells)
@@ -197,7 +225,8 @@ def waypoint(field: jax.Array, size: jax.Array, goal: jax.Array, xy: jax.Array, 
     def body(c):
         cy, cx, walked, _ = c
         v, vy, vx, steps = _neighbours(field, cy, cx)
-        j = jnp.argmin(v + steps * res)
+        edge = res if cost is None else res * cost[cy, cx]
+        j = jnp.argmin(v + steps * edge)
         go = (v[j] < field[cy, cx]) & in_sight(vy[j], vx[j])
         return jnp.where(go, vy[j], cy), jnp.where(go, vx[j], cx), walked + steps[j] * res, go
 
@@ -210,7 +239,7 @@ def waypoint(field: jax.Array, size: jax.Array, goal: jax.Array, xy: jax.Array, 
 def reachable(world, goal: jax.Array, clearance: jax.Array, goal_radius: jax.Array, cells: int) -> jax.Array:
     """bool[starts]: which start rows of `world` (one room) have a path to `goal` on the plan's
     grid (their cell, or a free neighbour of it, has a finite field value)."""
-    field = goal_field(world, goal, clearance, goal_radius, cells)
+    field = goal_field(world, goal, clearance, goal_radius, cells)[0]
 
     def one(xy):
         iy, ix = cell_of(xy, world.size, cells)
@@ -226,19 +255,21 @@ class Plan:
     start row, where a respawn puts the robot (so that a step computes one waypoint, not two;
     as `EnvState.start_ranges` keeps the scans at the starts)."""
 
-    field: jax.Array  # f32[cells, cells] m to the goal
+    field: jax.Array  # f32[cells, cells] m to the goal (each edge times its cell's cost)
+    cost: jax.Array  # f32[cells, cells] the cells' length multipliers (`cell_costs`; 1 with no margin)
     starts: jax.Array  # f32[starts, 2] the waypoint at each start row
 
 
 def make(params, goal: jax.Array, clearance: jax.Array, cells: int) -> Plan:
     """An episode's `Plan` towards `goal` in the room of `params` (EnvParams: its world, goal
-    radius and plan_lookahead), inflated by `clearance`."""
+    radius, plan_lookahead and plan_margin), inflated by `clearance`."""
     world = params.world
-    field = goal_field(world, goal, clearance, params.goal_radius, cells)
-    starts = jax.vmap(lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead))(world.starts[:, :2])
-    return Plan(field, starts)
+    field, cost = goal_field(world, goal, clearance, params.goal_radius, cells, params.plan_margin)
+    walk = lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead, cost)  # noqa: E731
+    starts = jax.vmap(walk)(world.starts[:, :2])
+    return Plan(field, cost, starts)
 
 
 def at(plan: Plan, params, goal: jax.Array, xy: jax.Array) -> jax.Array:
     """f32[2]: the waypoint of `plan` for a robot at `xy` (`waypoint` with the params' lookahead)."""
-    return waypoint(plan.field, params.world.size, goal, xy, params.plan_lookahead)
+    return waypoint(plan.field, params.world.size, goal, xy, params.plan_lookahead, plan.cost)
