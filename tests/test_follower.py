@@ -1,0 +1,82 @@
+"""The scripted follower (fedjax_nav/evaluation/baselines.py, docs/planning.md "A scripted
+follower") and `scripts/follower_suite.py`: its action from the observation's bearing, and through
+the suite protocol on a room whose straight way is walled: with the plan it goes round the wall's
+end and arrives, without it it drives into the wall."""
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from fedjax_nav.config import from_dict
+from fedjax_nav.evaluation.baselines import TURN_GAIN, TURN_IN_PLACE, follower, follower_run
+from fedjax_nav.evaluation.suite import evaluate_suite
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("follower_suite", ROOT / "scripts" / "follower_suite.py")
+follower_suite = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(follower_suite)
+
+BEAMS = 24
+# start 0 faces +x towards the goal; a wall across the straight way leaves a 1 m gap at the top
+WALLED = {"size": [3, 3], "segments": [[0, -1.5, 0, 0.5]], "starts": [[-1, 0, 0]], "goals": [[1, 0]]}
+
+
+@pytest.mark.parametrize("plan", [True, False])
+def test_the_action_turns_to_the_bearing_and_drives_when_facing_it(plan):
+    policy = follower(BEAMS, plan)
+    at = BEAMS + 1  # the bearing after the distance, the waypoint's or the goal's (plan.layout)
+    for bearing in (0.0, -0.25, 0.6, math.pi / 2, -3.0):
+        obs = jnp.zeros(BEAMS + (5 if plan else 4)).at[at].set(bearing)
+        v, omega = np.asarray(policy(None, obs))
+        assert v == pytest.approx(max(0.0, 1.0 - abs(bearing) / TURN_IN_PLACE), abs=1e-6)
+        assert omega == pytest.approx(float(np.clip(TURN_GAIN * bearing, -1, 1)), abs=1e-6)
+    assert follower(BEAMS, plan) is policy  # one function object: evaluations share a program
+
+
+def _cfg(plan: bool):
+    env = {"episode_length": 300, "plan": plan, "plan_cells": 32, "plan_margin": 0.3, "plan_lookahead": 0.5}
+    return from_dict({"learner": "ppo", "method": "snddpg", "env": env, "run": {"seeds": 1}})
+
+
+@pytest.fixture(scope="module")
+def walled(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("rooms")
+    (folder / "walled.json").write_text(json.dumps(WALLED))
+    return folder
+
+
+@pytest.mark.parametrize("plan", [True, False])
+def test_with_the_plan_it_goes_round_the_wall_without_it_drives_into_it(walled, tmp_path, plan):
+    res = evaluate_suite(follower_run(_cfg(plan), tmp_path), str(walled), attempts=2)
+    ep = res["episodes"]
+    assert len(ep) == 2 and res["summary"]["agents"] == 1
+    if plan:
+        assert ep["success"].all() and ep["path_ratio"].max() < 1.5
+    else:
+        assert ep["collision"].all()
+
+
+def test_the_script_writes_the_suite_tables_and_keeps_them(walled, tmp_path, capsys):
+    cfg_file = tmp_path / "plan.yaml"
+    cfg_file.write_text(json.dumps({"learner": "ppo", "method": "snddpg", "env": {"episode_length": 300}}))
+    out = tmp_path / "f"
+    sets = ["--set", "env.plan=true", "--set", "env.plan_cells=32", "--set", "env.plan_margin=0.3"]
+    args = [str(cfg_file), *sets, "--suite", str(walled), "--out", str(out)]
+    assert follower_suite.main(args) == 0
+    fams = pd.read_csv(out / "suite_families.csv")
+    assert fams.loc[fams.family == "all", "success"].item() == 1.0
+    assert follower_suite.main(args) == 2  # a kept evaluation is not overwritten
+    assert "exists" in capsys.readouterr().err
+    assert (
+        follower_suite.main(
+            [str(cfg_file), "--set", "env.plan_margin=-1", "--suite", str(walled), "--out", str(tmp_path / "g")]
+        )
+        == 2
+    )
+    assert "plan_margin" in capsys.readouterr().err
