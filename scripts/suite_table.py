@@ -1,7 +1,8 @@
 """Kept suite evaluations side by side (docs/clutter.md, docs/planning.md): each LABEL=FOLDER is an
 evaluation folder (`fedjax-nav evaluate RUN --suite NAME [--out FOLDER]` writes suite_families.csv
-there); one row per label and family with success [95% interval over training seeds], the worst
-tenth of rooms, collisions, time-outs and the direct / detour goals' success.
+there); one row per label and family with success [95% interval over training seeds; none with
+one seed or a scripted baseline], the worst tenth of rooms, collisions, time-outs and the direct /
+detour goals' success.
 
     python scripts/suite_table.py ideal=runs/a/eval/dense-heldout pooled=runs/b/eval/dense-heldout --csv results/x.csv
 """
@@ -35,7 +36,7 @@ def markdown(t: pd.DataFrame) -> str:
     out = ["| what | family | success [seeds] | worst 10% | collision | time-out | direct goals | detour goals |"]
     out.append("|---|---|---|---|---|---|---|---|")
     for r in t.itertuples(index=False):
-        ci = f"{r.success:.3f} [{r.ci_seeds_low:.3f}, {r.ci_seeds_high:.3f}]"
+        ci = f"{r.success:.3f}" + ("" if pd.isna(r.ci_seeds_low) else f" [{r.ci_seeds_low:.3f}, {r.ci_seeds_high:.3f}]")
         cells = [r.label, r.family, ci, *(f"{v:.3f}" for v in (r.worst10, r.collision, r.timeout))]
         out.append("| " + " | ".join(cells + [f"{r.success_direct:.3f}", f"{r.success_detour:.3f}"]) + " |")
     return "\n".join(out)
