@@ -1,7 +1,8 @@
-"""The scripted follower (fedjax_nav/evaluation/baselines.py, docs/planning.md "A scripted
-follower") and `scripts/follower_suite.py`: its action from the observation's bearing, and through
-the suite protocol on a room whose straight way is walled: with the plan it goes round the wall's
-end and arrives, without it it drives into the wall."""
+"""The scripted follower (fedjax_nav/evaluation/baselines.py, docs/planning.md "The margin, and a
+scripted follower") and `scripts/suite_with.py`: the follower's action from the observation's
+bearing, and through the suite protocol on a room whose straight way is walled: with the plan it
+goes round the wall's end and arrives, without it it drives into the wall; a run's own agents
+under a traced env value changed, a static one refused."""
 
 import importlib.util
 import json
@@ -18,9 +19,9 @@ from fedjax_nav.evaluation.baselines import TURN_GAIN, TURN_IN_PLACE, follower, 
 from fedjax_nav.evaluation.suite import evaluate_suite
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("follower_suite", ROOT / "scripts" / "follower_suite.py")
-follower_suite = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(follower_suite)
+spec = importlib.util.spec_from_file_location("suite_with", ROOT / "scripts" / "suite_with.py")
+suite_with = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(suite_with)
 
 BEAMS = 24
 # start 0 faces +x towards the goal; a wall across the straight way leaves a 1 m gap at the top
@@ -67,16 +68,32 @@ def test_the_script_writes_the_suite_tables_and_keeps_them(walled, tmp_path, cap
     cfg_file.write_text(json.dumps({"learner": "ppo", "method": "snddpg", "env": {"episode_length": 300}}))
     out = tmp_path / "f"
     sets = ["--set", "env.plan=true", "--set", "env.plan_cells=32", "--set", "env.plan_margin=0.3"]
-    args = [str(cfg_file), *sets, "--suite", str(walled), "--out", str(out)]
-    assert follower_suite.main(args) == 0
+    args = [str(cfg_file), "--follower", *sets, "--suite", str(walled), "--out", str(out)]
+    assert suite_with.main(args) == 0
     fams = pd.read_csv(out / "suite_families.csv")
     assert fams.loc[fams.family == "all", "success"].item() == 1.0
-    assert follower_suite.main(args) == 2  # a kept evaluation is not overwritten
+    assert suite_with.main(args) == 2  # a kept evaluation is not overwritten
     assert "exists" in capsys.readouterr().err
     assert (
-        follower_suite.main(
+        suite_with.main(
             [str(cfg_file), "--set", "env.plan_margin=-1", "--suite", str(walled), "--out", str(tmp_path / "g")]
         )
         == 2
     )
     assert "plan_margin" in capsys.readouterr().err
+
+
+def test_a_runs_agents_under_a_traced_value_changed(tmp_path, capsys):
+    from test_suite_dir import ROOMS, constant_run
+
+    rooms = tmp_path / "rooms"
+    rooms.mkdir()
+    (rooms / "far.json").write_text(json.dumps(ROOMS["far.yml"]))  # 3.5 m ahead: 1.5 m driven in time
+    run = constant_run(tmp_path / "run")  # full speed straight on
+    base = [str(run), "--suite", str(rooms)]
+    assert suite_with.main([*base, "--out", str(tmp_path / "a")]) == 0
+    assert suite_with.main([*base, "--set", "env.v_max=1.0", "--out", str(tmp_path / "b")]) == 0
+    ep = {k: pd.read_csv(tmp_path / k / "suite_episodes.csv") for k in "ab"}
+    assert ep["a"]["timeout"].all() and ep["b"]["success"].all()  # 4x the speed: 6 m in time
+    assert suite_with.main([*base, "--set", "env.num_beams=12", "--out", str(tmp_path / "c")]) == 2
+    assert "env.num_beams: not a traced value" in capsys.readouterr().err

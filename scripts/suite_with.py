@@ -1,0 +1,60 @@
+"""A suite evaluation under changed env values (docs/planning.md, "The margin, and a scripted
+follower"): a run's own agents with traced env values overridden (e.g. the plan's margin and
+lookahead of a run trained without them), or, with --follower, the scripted follower
+(fedjax_nav.evaluation.baselines) in the env of a run or a config, through the learned policies'
+protocol. Written as `fedjax-nav evaluate --suite` writes it (suite.json, suite_families.csv,
+suite_episodes.csv), so scripts/suite_table.py sets it beside the runs'.
+
+    python scripts/suite_with.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 --suite maze-50 --out x/m03
+    python scripts/suite_with.py RUN --follower --suite dense-heldout --out runs/x/follower-dense
+    python scripts/suite_with.py configs/learners/ppo.yaml --follower --set env.plan=true --suite heldout --out runs/x/f
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("source", help="a run directory (its agents and config.yaml), or with --follower a config file")
+    ap.add_argument("--follower", action="store_true", help="drive the scripted follower, not the run's agents")
+    ap.add_argument("--set", action="append", default=[], help="config overrides, as `fedjax-nav train --set`")
+    ap.add_argument("--suite", default="dense-heldout")
+    ap.add_argument("--attempts", type=int, default=1)
+    ap.add_argument("--out", required=True, help="the evaluation's folder (refused when it holds one)")
+    a = ap.parse_args(argv)
+
+    from fedjax_nav.config import ConfigError, load_config, traced_fields
+    from fedjax_nav.config.io import overridden_keys
+    from fedjax_nav.evaluation.baselines import follower_run
+    from fedjax_nav.evaluation.limits import EvalError
+    from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.suite import SUITE_JSON, evaluate_suite, write_suite
+
+    src, out = Path(a.source), Path(a.out)
+    if (out / SUITE_JSON).exists():
+        print(f"error: {out / SUITE_JSON} exists: choose another --out", file=sys.stderr)
+        return 2
+    fixed = sorted(k for k in overridden_keys(a.set) if k not in traced_fields())
+    if not a.follower and fixed:  # a run's networks were built for its static settings
+        print(f"error: --set {fixed[0]}: not a traced value; a run's agents take traced values only", file=sys.stderr)
+        return 2
+    try:
+        cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
+        run = follower_run(cfg, out) if a.follower else dataclasses.replace(load_run(src), cfg=cfg)
+        res = evaluate_suite(run, a.suite, attempts=a.attempts)
+    except (ConfigError, EvalError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    fams = res["families"]
+    print(fams[["family", "rooms", "success", "worst10", "collision", "timeout"]].to_string(index=False))
+    print("wrote " + ", ".join(str(p) for p in write_suite(res, out)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
