@@ -367,17 +367,9 @@ class RunAgents:
     agent_net: np.ndarray  # i64[A] the network index within its seed
     n_nets: int
     num_robots: int
-    # what drives: None, the run's learner's greedy policy (`runs.greedy_policy`); else a policy
+    # what drives: None, the run's learner's greedy policy (`runs.run_policy`); else a policy
     # as `eval_program` takes it (a scripted baseline: `evaluation.baselines`)
     policy: Any = None
-
-    def greedy(self):
-        """The policy the evaluation drives: `policy`, else the run's learner's greedy one."""
-        if self.policy is not None:
-            return self.policy
-        from fedjax_nav.evaluation.runs import greedy_policy  # runs.py imports this module
-
-        return greedy_policy(self.cfg)
 
     @property
     def num_agents(self) -> int:

@@ -91,6 +91,12 @@ def greedy_policy(cfg) -> Callable | MemoryPolicy:
     return _learner_policy(cfg.learner, tuple(sorted(mine.items())))
 
 
+def run_policy(run: RunAgents) -> Callable | MemoryPolicy:
+    """The policy an evaluation of `run` drives: its `policy` (a scripted baseline's), else the
+    run's learner's greedy one (`greedy_policy`)."""
+    return run.policy if run.policy is not None else greedy_policy(run.cfg)
+
+
 def _expected_actor(cfg, obs_size: int):
     """The actor's parameter shapes for the run's learner (jax.eval_shape: nothing computed)."""
     from fedjax_nav.learner_table import get

@@ -37,7 +37,7 @@ from fedjax_nav.env.shared import fixed_fleet, fleet_others, place_fleet
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.evaluation.policies import as_memory_policy
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
-from fedjax_nav.evaluation.runs import load_run
+from fedjax_nav.evaluation.runs import load_run, run_policy
 from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
 from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
 
@@ -156,7 +156,7 @@ class SharedProtocol:
         return jax.random.split(jax.random.fold_in(jax.random.key(seed), k), R * A).reshape(R, A)
 
     def program(self, k: int, trajectories: bool = False):
-        return fleet_program(self.settings, self.run.greedy(), k, trajectories, self.fixed)
+        return fleet_program(self.settings, run_policy(self.run), k, trajectories, self.fixed)
 
 
 def shared_protocol(run_dir, suite, world, attempts, ks, range_noise, action_noise, max_steps) -> SharedProtocol:

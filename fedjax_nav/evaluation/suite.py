@@ -46,7 +46,7 @@ from fedjax_nav.env.nav import make_params
 from fedjax_nav.evaluation import paths
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
-from fedjax_nav.evaluation.runs import RunAgents, load_run
+from fedjax_nav.evaluation.runs import RunAgents, load_run, run_policy
 from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
 from fedjax_nav.evaluation.suite_stats import TAIL, family_row
 from fedjax_nav.worlds import WorldError
@@ -101,7 +101,7 @@ class SuiteProtocol:
     def check(self, rooms: int, k: int, asked: int, budget: int | None) -> None:
         """`limits.check_eval_memory` of `rooms` x agents x goals x `k` attempts (`asked`: --attempts)."""
         room = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), self.params)  # one room's shapes
-        state = episode_state(self.settings, room, self.run.greedy())
+        state = episode_state(self.settings, room, run_policy(self.run))
         shape = (rooms, self.run.num_agents, self.shape[2], k)
         check_eval_memory(self.settings, state, shape, min(CHUNK, self.T), asked, budget, str(self.run.run_dir))
 
@@ -112,7 +112,7 @@ class SuiteProtocol:
         G = self.shape[2]
         pick = (lambda x: x) if rooms is None else (lambda x: x[np.asarray(rooms)])
         params, keys = jax.tree.map(pick, self.params), pick(self.keys())[:, :, : G * (k or self.K)]
-        program = _rooms_program(eval_program(self.settings, self.run.greedy(), min(CHUNK, self.T)))
+        program = _rooms_program(eval_program(self.settings, run_policy(self.run), min(CHUNK, self.T)))
         return jax.device_get(program(self.run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))
 
 
