@@ -1,7 +1,8 @@
 """The learners as data, the one table every layer reads (docs/learners.md, "Adding a learner"), as
 `methods.py` is for the methods: a row per learner names its config sections, whether it learns
 on-policy, what a federated round averages, how its greedy actor is evaluated and exported, how its
-update events are counted, and where its implementation (an `agents.learners.Learner`) lives, as
+update events are counted, which saved networks its learned value reads (`value_networks`), and
+where its implementation (an `agents.learners.Learner`) lives, as
 a "module:attribute" string resolved only when asked (`implementation`), so that this table stays
 free of jax. The config's `learner` choices are this table's keys; nothing in the package branches
 on a learner's name.
@@ -50,6 +51,9 @@ class LearnerRow:
     update_size: str  # the dotted config field that sizes one update's batch (a memory refusal names it)
     recurrent: str = ""  # a dotted choice field: where its value is not "none" the actor is a GRU ("gru" export)
     plain_actor: bool = False  # evaluated by evaluation.policies.actor_policy(hidden, depth, activation)
+    # the params.npz networks its learned value V(s) reads (`agents.learners.Learner.value`; the
+    # evaluation's `evaluation.values`); (): no value for the evaluation to call
+    value_networks: tuple[str, ...] = ()
 
     def learner(self):
         """Its `agents.learners.Learner` (imports the implementation's module: jax)."""
@@ -85,6 +89,7 @@ LEARNERS: dict[str, LearnerRow] = {
             shared=("actor", "critic"),
             targets=("actor_targ", "critic_targ"),
             export="heads",  # agents/networks.Actor: sigmoid and tanh heads
+            value_networks=("actor", "critic"),  # Q(s, mu(s))
             plain_actor=True,  # the thesis's evaluation program
             **_OFF_POLICY,
         ),
@@ -95,6 +100,7 @@ LEARNERS: dict[str, LearnerRow] = {
             shared=("actor", "critics"),
             targets=("actor_targ", "critics_targ"),
             export="heads",  # DDPG's actor
+            value_networks=("actor", "critics"),  # the twins' min Q(s, mu(s))
             **_OFF_POLICY,
         ),
         LearnerRow(
@@ -104,6 +110,7 @@ LEARNERS: dict[str, LearnerRow] = {
             shared=("actor", "critics", "log_alpha"),
             targets=("critics_targ",),
             export="squashed",  # SquashedGaussianActor's mean (its log-std head is not needed)
+            value_networks=("actor", "critics"),  # the twins' min Q at the greedy action (no entropy term)
             **_OFF_POLICY,
         ),
         LearnerRow(
@@ -116,6 +123,7 @@ LEARNERS: dict[str, LearnerRow] = {
             actor_section="ppo",
             export="squashed",  # MeanNet: the Gaussian's mean through the tanh squash
             recurrent="ppo.recurrent",  # RecurrentMLP with its GRU
+            value_networks=("actor", "value"),  # the value net; the actor for its observation statistics
             update_every="ppo.rollout",
             steps_per_update=("ppo.epochs", "ppo.minibatches"),
             storage_size="ppo.rollout",  # [rollout, environments] per robot

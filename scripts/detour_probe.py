@@ -1,8 +1,10 @@
 """Why detours fail (docs/clutter.md, "Why detours fail"): a run's failed detour episodes of a kept
 suite evaluation, replayed in the rooms with the most of them and read where they went wrong
 (fedjax_nav.evaluation.detours): turned back, stood still, the straight way blocked, crashes the
-beams did not see. Prints the summary per family and outcome; --csv keeps every episode's row,
---figure draws the rooms (every agent's attempt to each goal, a colour per goal).
+beams did not see, and the learned value along the way (V at the start, at the closest approach,
+over the last 100 steps, at the end; --no-value leaves it out). Prints the summary per family and
+outcome; --csv keeps every episode's row, --figure draws the rooms (every agent's attempt to each
+goal, a colour per goal).
 
     fedjax-nav evaluate RUN --suite dense-heldout
     python scripts/detour_probe.py RUN --suite dense-heldout --rooms 12 --csv results/x.csv --figure docs/img/x.png
@@ -22,6 +24,7 @@ def main(argv=None) -> int:
     ap.add_argument("--folder", default=None, help="the kept evaluation (default RUN/eval/<suite>/)")
     ap.add_argument("--csv", default=None, help="write every replayed episode's row here")
     ap.add_argument("--figure", default=None, help="draw the replayed rooms here (PNG)")
+    ap.add_argument("--no-value", action="store_true", help="leave out the learned value's columns")
     a = ap.parse_args(argv)
 
     from fedjax_nav.evaluation import detours, figures
@@ -29,7 +32,7 @@ def main(argv=None) -> int:
     from fedjax_nav.experiments.thesis_report import md_table
 
     try:
-        table, replayed = detours.read(a.run, a.suite, a.rooms, folder=a.folder)
+        table, replayed = detours.read(a.run, a.suite, a.rooms, folder=a.folder, value=not a.no_value)
     except EvalError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

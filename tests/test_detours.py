@@ -1,8 +1,10 @@
 """Why detours fail (fedjax_nav.evaluation.detours): a crash into a trunk thinner than the gap
 between two beams is read as unseen (analytic geometry), the rooms are chosen by their failed
 detours, and the replayed episodes are the kept evaluation's, read consistently with the exact
-collision test (the worst-rooms run of tests/test_worst_rooms.py, full tier)."""
+collision test, with the learned value at the observations the replay recorded (the worst-rooms
+run of tests/test_worst_rooms.py, full tier)."""
 
+import jax
 import numpy as np
 import pandas as pd
 import pytest
@@ -63,3 +65,15 @@ def test_the_replayed_episodes_are_the_kept_evaluations_and_crashes_touch(evalua
         )
         assert r.gave_back_m == pytest.approx(max(d[t] - d[: t + 1].min() for t in range(len(d))), abs=1e-5)
     assert detours.summary(table)["episodes"].sum() == 2 * int(table["detour"].astype(bool).sum())  # family + all
+    # the value (DDPG: Q(s, mu(s))) at each episode's first observation, from params.npz by flax
+    from fedjax_nav import rundir
+    from fedjax_nav.agents import ddpg
+
+    actor, critic = (rundir.read_params(run, n) for n in ("actor", "critic"))
+    nets = ddpg.make_nets(8, 1, "relu")  # test_worst_rooms.TINY's offpolicy network
+    for r in table.head(8).itertuples():
+        at = lambda x, r=r: x[w.agent_seed[r.agent] - w.agent_seed.min(), w.agent_net[r.agent]]  # noqa: E731
+        obs = w.obs[r.i, r.agent, r.goal, r.attempt, 0]
+        q = nets.critic.apply(jax.tree.map(at, critic), obs, ddpg.act(nets, jax.tree.map(at, actor), obs))
+        assert r.v_start == pytest.approx(float(q), rel=1e-5, abs=1e-5)
+    assert table[detours.VALUES].notna().all().all()

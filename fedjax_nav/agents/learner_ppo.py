@@ -61,6 +61,13 @@ def greedy(nets: OnPolicyNets, actor, obs, memory, first):
     return ppo.greedy_actor(nets.ppo, actor, obs, memory, first)
 
 
+def value(nets: OnPolicyNets, params: dict, obs, memory, first):
+    """(V(obs), memory with the value's GRU state advanced): the value net on params["value"], the
+    observation normalised with params["actor"]'s statistics as `explore` does."""
+    v, h = ppo.value(nets.ppo, params["actor"], params["value"], obs, memory.value, first)
+    return v, memory._replace(value=h)
+
+
 def storage(nets: OnPolicyNets, obs_size: int, rows: int) -> ppo.Rollout:
     T, A, H = nets.rollout, nets.ppo.action_size, nets.ppo.gru
 

@@ -11,6 +11,7 @@ never looks at a learner's name (docs/learners.md, "The trainer's side").
     storage = learner.storage(nets, obs_size, rows)    # one buffer: replay rows, or a rollout
     storage = learner.store(nets, storage, record, g, rows, hp)
     state, losses = learner.update(nets, state, storage, key, g, rows, hp)    # where learner.due(...)
+    v, memory = learner.value(nets, params, obs, memory, first)   # the evaluation's learned value
 
 Every function is for ONE agent, ONE buffer or ONE environment, unbatched (the trainer adds agents,
 environments and seeds with vmap). `hp` is the trainer's HParams (config.traced: the traced config
@@ -42,7 +43,7 @@ from fedjax_nav.agents import ddpg, sac, td3
 from fedjax_nav.agents import learner_ppo as lp
 from fedjax_nav.agents.networks import ACTIVATIONS_OUTSIDE, ACTIVATIONS_PER_LAYER, Critic
 from fedjax_nav.agents.networks_extra import SquashedGaussianActor
-from fedjax_nav.agents.offpolicy import Batch, nstep, one_step
+from fedjax_nav.agents.offpolicy import Batch, min_q, nstep, one_step
 
 
 class Record(NamedTuple):
@@ -80,6 +81,10 @@ class Learner(NamedTuple):
     update_bytes: Callable
     targets_due: Callable | None = None  # (nets, g, rows, hp) -> bool[]: a separate target update (DDPG)
     targets: Callable | None = None  # (nets, state, hp) -> state
+    # (nets, params, obs, memory, first) -> (V f32[], memory): the learned value of one observation,
+    # params {network: its parameters} of the row's `value_networks` (params.npz; evaluation.values);
+    # None: no value for the evaluation to call
+    value: Callable | None = None
     # exploration that is not the agent's: a carry of one seed, stepped once per environment step
     explore_init: Callable = lambda hp: ()  # (hp) -> the carry at step 0
     explore_next: Callable = lambda carry, hp: carry  # (carry, hp) -> the carry after a step
@@ -229,6 +234,26 @@ def _stateless(greedy: Callable) -> Callable:
     return act
 
 
+def _critic_q(nets, params, obs, action):
+    """DDPG's one critic: Q(obs, action)."""
+    return nets.critic.apply(params["critic"], obs, action)
+
+
+def _twin_q(nets, params, obs, action):
+    """TD3's and SAC's twin critics: their min, as their targets take it."""
+    return min_q(nets.critic, params["critics"], obs, action)
+
+
+def _q_value(greedy: Callable, q: Callable) -> Callable:
+    """V(s) = Q(s, mu(s)) at the greedy action `greedy(nets, actor, obs)`, `q(nets, params, obs,
+    action)` the learner's critic (`_critic_q`, `_twin_q`); no memory."""
+
+    def value(nets, params, obs, memory, first):
+        return q(nets, params, obs, greedy(nets, params["actor"], obs)), memory
+
+    return value
+
+
 OFF_POLICY_METRICS = ("critic_loss", "actor_loss", "q")
 
 
@@ -274,16 +299,19 @@ def _ddpg_targets_due(nets, g, rows: int, hp):
 def _replay_learner(actor_cls, grad_step: Callable, greedy: Callable, **fields) -> Learner:
     """An off-policy learner: `actor_cls` and the critic at the offpolicy.* network sizes, replay rows
     (`_replay`, `_store_replay`, `_due_replay`), `gradient_steps` calls of `grad_step` per update
-    event, a stateless `greedy(nets, policy, obs)`, no memory. `fields`: the Learner's others (init,
-    explore; metrics if not OFF_POLICY_METRICS; DDPG's targets)."""
+    event, a stateless `greedy(nets, policy, obs)`, no memory, the value Q(s, greedy(s)). `fields`:
+    the Learner's others (init, explore; metrics if not OFF_POLICY_METRICS; DDPG's targets; `q` if
+    not `_twin_q`)."""
     metrics = fields.pop("metrics", OFF_POLICY_METRICS)
     critics = fields.pop("critics", 1)  # twin critics (TD3, SAC): `_replay_bytes`
+    q = fields.pop("q", _twin_q)
     return Learner(
         metrics=metrics,
         make_nets=_off_policy_nets(actor_cls),
         memory=_no_memory,
         policy=_actor,
         greedy=_stateless(greedy),
+        value=_q_value(greedy, q),
         storage=_replay,
         store=_store_replay,
         due=_due_replay,
@@ -299,6 +327,7 @@ DDPG = _replay_learner(
     ddpg.act,
     init=lambda nets, key, obs_size, hp: ddpg.init_agent(nets, key, obs_size),
     explore=_ddpg_explore,
+    q=_critic_q,
     targets_due=_ddpg_targets_due,
     targets=lambda nets, state, hp: ddpg.update_targets(state, hp.ddpg.rho),
     explore_init=lambda hp: jnp.asarray(hp.ddpg.epsilon_start, jnp.float32),
@@ -332,6 +361,7 @@ PPO = Learner(
     explore=lp.explore,
     policy=_actor,
     greedy=lp.greedy,
+    value=lp.value,
     storage=lp.storage,
     store=lp.store,
     due=lp.due,

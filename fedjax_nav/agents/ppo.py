@@ -210,6 +210,13 @@ def act(nets: Nets, state: State, obs: jax.Array, key: jax.Array, hidden: Hidden
     return Step(action, raw, logp, jnp.reshape(v, ())), Hidden(h_a, h_v)
 
 
+def value(nets: Nets, actor: dict, value: dict, obs: jax.Array, hidden: jax.Array, reset) -> tuple:
+    """(V(obs) f32[], the value GRU's next hidden state): what `act` logs as Step.value, from the
+    value's parameters and the actor's (its observation statistics normalise obs, when kept)."""
+    h_v, v = _net_step(nets, nets.value, value, hidden, observe(nets, actor, obs), reset)
+    return jnp.reshape(v, ()), h_v
+
+
 def greedy(nets: Nets, state: State, obs: jax.Array, hidden: Hidden, reset) -> tuple[jax.Array, Hidden]:
     """The deterministic action (the squashed mean). Only the actor's hidden state advances
     (evaluation needs no value)."""

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fedjax_nav.env import plan as gp
-from fedjax_nav.evaluation.rollout import RunAgents
+from fedjax_nav.evaluation.run_data import RunAgents
 
 TURN_GAIN = 2.0  # omega / omega_max per radian of bearing (saturates past 0.5 rad)
 TURN_IN_PLACE = math.pi / 4  # rad: no forward speed at or beyond this bearing

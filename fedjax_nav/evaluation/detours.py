@@ -13,7 +13,13 @@ rooms with the most failed ones, each read where it went wrong (`read_episodes`,
   nearest return within +-45 deg of its heading, `goal_bearing_deg` the goal's bearing;
 - `crash_clearance_m` (collisions): the true clearance at the crash pose (exact geometry) and
   `crash_beam_m` the nearest of the ideal beams there; `unseen`: the beams read more than D_c +
-  UNSEEN at the crash, an obstacle that sat between two beams.
+  UNSEEN at the crash, an obstacle that sat between two beams;
+- the learned value (`value_columns`, `evaluation.values`: PPO's V(s), an off-policy learner's
+  Q(s, mu(s))) of the observations the policy acted on, recorded by the replay itself (the same
+  noise keys: `rollout.observed_program`), step t's at pose t for t < steps: `v_start` (step 0),
+  `v_closest` (at the closest approach, the last acted-on step where that is the final pose),
+  `v_last_100` (the mean over its last 100 acted-on steps), `v_end` (the last one) and `v_fell`
+  (v_end < v_start).
 
     python scripts/detour_probe.py RUN --suite dense-heldout     # needs `fedjax-nav evaluate RUN --suite ...`
 """
@@ -77,9 +83,27 @@ def _episode_rows(w, episodes: pd.DataFrame) -> pd.DataFrame:
     return rows.merge(suite, on=keys, how="left", validate="one_to_one")
 
 
-def read_episodes(w, episodes: pd.DataFrame, env) -> pd.DataFrame:
+def value_columns(v: np.ndarray, steps: np.ndarray, closest: np.ndarray) -> dict:
+    """The value readings of episodes: v f32[E, T + 1] the value at each pose's observation, steps
+    i[E] the steps taken (the policy acted on observations 0 .. steps - 1), closest i[E] the step
+    of the closest approach (at most steps)."""
+    e, last = np.arange(len(steps)), np.maximum(steps - 1, 0)
+    t = np.arange(v.shape[1])[None, :]
+    tail = (t >= np.maximum(steps - 100, 0)[:, None]) & (t <= last[:, None])
+    end = v[e, last]
+    return {
+        "v_start": v[:, 0],
+        "v_closest": v[e, np.minimum(closest, last)],
+        "v_last_100": (v * tail).sum(1) / tail.sum(1),
+        "v_end": end,
+        "v_fell": end < v[:, 0],
+    }
+
+
+def read_episodes(w, episodes: pd.DataFrame, env, values=None) -> pd.DataFrame:
     """`read`'s table from a replay `w` (`worst_rooms.WorstRooms`), the evaluation's episodes and
-    the run's env config (`cfg.env`: v_max, dt, collision_distance, num_beams, max_range)."""
+    the run's env config (`cfg.env`: v_max, dt, collision_distance, num_beams, max_range);
+    `values` f32[n, A, G, k, T + 1] the learned value at each pose of `w` (`value_columns`), or None."""
     rows = _episode_rows(w, episodes)
     at = tuple(rows[c].to_numpy() for c in ("i", "agent", "goal", "attempt"))
     poses, steps = w.poses[at], w.steps[at]  # [E, T + 1, 3], [E]
@@ -102,6 +126,7 @@ def read_episodes(w, episodes: pd.DataFrame, env) -> pd.DataFrame:
     back = np.maximum(steps - 100, 0)
     live_d = np.where(live, dist, -np.inf)
     gave_back = np.max(live_d - np.minimum.accumulate(np.where(live, dist, np.inf), axis=1), axis=1)
+    more = {} if values is None else value_columns(np.asarray(values)[at], steps, closest)
     return rows.assign(
         outcome=outcome,
         steps=steps,
@@ -117,24 +142,46 @@ def read_episodes(w, episodes: pd.DataFrame, env) -> pd.DataFrame:
         crash_clearance_m=np.where(outcome == "collision", clear, np.nan),
         crash_beam_m=np.where(outcome == "collision", beam, np.nan),
         unseen=(outcome == "collision") & (beam > env.collision_distance + UNSEEN),
+        **more,
     )
 
 
-def read(run_dir, suite: str, rooms: int = 12, attempts: int = 1, folder=None):
+def replay_values(run, params: dict, w) -> np.ndarray:
+    """The learned value f32[n, A, G, k, T + 1] at every observation of a replay kept with its
+    observations (`replay(..., observations=True)`), each episode from its start: `run` its
+    `RunAgents`, `params` its `values.value_params`."""
+    from fedjax_nav.evaluation.values import values_along
+
+    obs = np.moveaxis(w.obs, 1, 0)  # [A, n, G, k, T + 1, obs]: the agent axis first
+    v = values_along(run, params, obs.reshape(obs.shape[0], -1, *obs.shape[-2:]))
+    return np.moveaxis(v.reshape(obs.shape[:-1]), 0, 1)
+
+
+def read(run_dir, suite: str, rooms: int = 12, attempts: int = 1, folder=None, value: bool = True):
     """The episodes of the `rooms` rooms with the most failed detours of the kept evaluation of
-    `run_dir` on `suite`, replayed and read: (`read_episodes`' table, the replay)."""
+    `run_dir` on `suite`, replayed and read: (`read_episodes`' table, the replay). `value`: with
+    the learned value's columns (a learner without a value: an EvalError naming it, before the replay)."""
     from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.values import value_params
 
     _, _, episodes = kept_evaluation(run_dir, suite, folder)
-    w = replay(run_dir, suite, rooms, attempts, folder, choose=most_failed_detours)
-    return read_episodes(w, episodes, load_run(run_dir).cfg.env), w
+    run = load_run(run_dir)
+    params = value_params(run) if value else None
+    w = replay(run_dir, suite, rooms, attempts, folder, choose=most_failed_detours, observations=value)
+    v = None if params is None else replay_values(run, params, w)
+    return read_episodes(w, episodes, run.cfg.env, v), w
+
+
+VALUES = ["v_start", "v_closest", "v_last_100", "v_end", "v_fell"]
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Per family (and all) and outcome, over the detour episodes: count and the mean of each reading."""
+    """Per family (and all) and outcome, over the detour episodes: count and the mean of each
+    reading (the value's too, where the table has them)."""
     t = table[table["detour"].astype(bool)]
     t = pd.concat([t, t.assign(family="all")])
     cols = ["progress", "gave_back_m", "turned_back", "stalled", "last_100_m", "goal_blocked", "front_m", "unseen"]
+    cols += [c for c in VALUES if c in t]
     out = t.groupby(["family", "outcome"])[cols].mean()
     out.insert(0, "episodes", t.groupby(["family", "outcome"]).size())
     return out.reset_index()

@@ -20,7 +20,8 @@ import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav.evaluation.metrics import SELECTED_NOTE
-from fedjax_nav.evaluation.rollout import EvalError, RunEvaluation
+from fedjax_nav.evaluation.rollout import EvalError
+from fedjax_nav.evaluation.run_data import RunEvaluation
 
 EVAL_JSON = rundir.EVAL_JSON
 EPISODES_CSV = rundir.EVAL_EPISODES

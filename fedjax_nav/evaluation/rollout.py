@@ -33,17 +33,15 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pandas as pd
 from flax import struct
 
-from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.env.nav import EnvState, NavEnv, make_params
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
@@ -133,6 +131,14 @@ def eval_program(env_settings: dict, policy: Callable, chunk: int):
     return _cached_program(tuple(sorted(env_settings.items())), as_memory_policy(policy), int(chunk))
 
 
+def observed_program(env_settings: dict, policy: Callable, chunk: int):
+    """`eval_program` that also returns "obs" f32[A, G, K, T + 1, obs]: obs[..., t, :] is the
+    observation at poses[..., t, :], the one the policy acted on at step t for t < steps (t = steps:
+    the episode's last, which it never acted on; frozen after the end). The episodes are the same.
+    For replays of a few rooms: `limits.eval_memory` counts the poses only (obs are obs_size / 3 x them)."""
+    return _cached_program(tuple(sorted(env_settings.items())), as_memory_policy(policy), int(chunk), True)
+
+
 def _init_one(env: NavEnv, memory_init: Callable, key, g, env_params) -> _Episode:
     """One episode's first state: reset at start 0 towards goal row `g`, the policy's memory at
     an episode's start."""
@@ -145,7 +151,7 @@ def _init_one(env: NavEnv, memory_init: Callable, key, g, env_params) -> _Episod
 
 
 @functools.lru_cache(maxsize=16)
-def _cached_program(env_settings: tuple, policy: MemoryPolicy, chunk: int):
+def _cached_program(env_settings: tuple, policy: MemoryPolicy, chunk: int, observations: bool = False):
     env = NavEnv(**dict(env_settings))
     T = env.episode_length
     n_chunks = -(-T // chunk)
@@ -178,15 +184,17 @@ def _cached_program(env_settings: tuple, policy: MemoryPolicy, chunk: int):
         G = goal_index.shape[0]
         goals_e = jnp.tile(goal_index, E // G)  # episode e = attempt * G + goal  (reordered below)
         ep = jax.vmap(jax.vmap(init_one, (0, 0, None)), (0, None, None))(keys, goals_e, env_params)
-        start_pose = ep.env_state.pose  # [A, E, 3]
+        # what each step records: the pose (and the observation there, with `observations`)
+        track = (lambda ep: (ep.env_state.pose, ep.obs)) if observations else (lambda ep: ep.env_state.pose)
+        start = track(ep)  # [A, E, ...]
         # agents x episodes: params vary over agents only
         step_all = jax.vmap(jax.vmap(step_one, (None, 0, None)), (0, 0, None))
 
         def inner(ep, _):
             ep = step_all(agent_params, ep, env_params)
-            return ep, ep.env_state.pose
+            return ep, track(ep)
 
-        buf = jnp.zeros((n_chunks, chunk, A, E, 3), jnp.float32)
+        buf = jax.tree.map(lambda x: jnp.zeros((n_chunks, chunk, *x.shape), x.dtype), start)
 
         def cond(carry):
             c, ep, _ = carry
@@ -194,24 +202,27 @@ def _cached_program(env_settings: tuple, policy: MemoryPolicy, chunk: int):
 
         def body(carry):
             c, ep, buf = carry
-            ep, poses = jax.lax.scan(inner, ep, None, length=chunk)
-            return c + 1, ep, jax.lax.dynamic_update_index_in_dim(buf, poses, c, 0)
+            ep, rows = jax.lax.scan(inner, ep, None, length=chunk)
+            return c + 1, ep, jax.tree.map(lambda b, r: jax.lax.dynamic_update_index_in_dim(b, r, c, 0), buf, rows)
 
         _, ep, buf = jax.lax.while_loop(cond, body, (jnp.int32(0), ep, buf))
-        poses = buf.reshape(n_chunks * chunk, A, E, 3)[:T]
-        # Chunks skipped by the early exit are zeros: every pose at or after an episode's end is
-        # its final pose (frozen), so fill those from the final state.
+        # Chunks skipped by the early exit are zeros: every row at or after an episode's end is
+        # its final one (frozen), so fill those from the final state.
         t = jnp.arange(1, T + 1)[:, None, None, None]
-        poses = jnp.where(t <= ep.steps[None, :, :, None], poses, ep.env_state.pose[None])
-        poses = jnp.concatenate([start_pose[None], poses], axis=0)  # [T + 1, A, E, 3]
-        poses = jnp.moveaxis(poses, 0, 2)  # [A, E, T + 1, 3]
+
+        def trajectory(b, first, last):  # [T + 1, A, E, ...] -> [A, E, T + 1, ...]
+            b = jnp.where(t <= ep.steps[None, :, :, None], b.reshape(n_chunks * chunk, *b.shape[2:])[:T], last[None])
+            return jnp.moveaxis(jnp.concatenate([first[None], b], axis=0), 0, 2)
+
+        rows = jax.tree.map(trajectory, buf, start, track(ep))
         out = {
             "success": ep.success,
             "collision": ep.collision,
             "timeout": ep.timeout,
             "steps": ep.steps,
             "path": ep.path,
-            "poses": poses,
+            "poses": rows[0] if observations else rows,
+            **({"obs": rows[1]} if observations else {}),
         }
         # [A, E] -> [A, K, G] -> [A, G, K]
         return jax.tree.map(lambda x: jnp.swapaxes(x.reshape(A, E // G, G, *x.shape[2:]), 1, 2), out)
@@ -350,53 +361,3 @@ def _policy_agents(policy: Callable, params: Any, num_agents: int | None) -> tup
     if num_agents is not None and num_agents != A:
         raise EvalError(f"num_agents={num_agents} but params have {A} agents on their leading axis")
     return A, policy, params
-
-
-# ----------------------------------------------------------------------------- runs as data
-# (here, below both the API in runs.py and the file writing in report.py, which both use them)
-
-
-@dataclass
-class RunAgents:
-    """The trained actors of a run, flattened to one agent axis [A = seeds x nets]."""
-
-    run_dir: Path
-    cfg: Any  # fedjax_nav.config.Config
-    actor_params: dict  # leaves [A, ...]
-    agent_seed: np.ndarray  # i64[A] the run's PRNG seed of each agent
-    agent_net: np.ndarray  # i64[A] the network index within its seed
-    n_nets: int
-    num_robots: int
-    # what drives: None, the run's learner's greedy policy (`runs.run_policy`); else a policy
-    # as `eval_program` takes it (a scripted baseline: `evaluation.baselines`)
-    policy: Any = None
-
-    @property
-    def num_agents(self) -> int:
-        return len(self.agent_seed)
-
-    @property
-    def agent_byzantine(self) -> np.ndarray:
-        """bool[A]: the agents of the run's Byzantine robots (`fed.byzantine`: the last robots of
-        each seed, as in training; docs/robustness.md). All False without them, or when the
-        robots share one network."""
-        byz = int(getattr(self.cfg.fed, "byzantine", 0))
-        if byz == 0 or self.n_nets != self.num_robots:
-            return np.zeros(self.num_agents, bool)
-        return np.asarray(self.agent_net) >= self.num_robots - byz
-
-
-@dataclass
-class RunEvaluation:
-    run: RunAgents
-    result: EvalResult
-    frame: pd.DataFrame
-    summary: dict  # what eval.json holds
-    world: World
-    world_meta: dict = field(default_factory=dict)
-    world_arg: str = "eval"  # the world as asked for (a shipped name or a file): names the folder
-
-    @property
-    def eval_dir(self) -> Path:
-        """Where this evaluation is kept by default: RUN/eval/<world>/ (rundir.eval_dir)."""
-        return rundir.eval_dir(self.run.run_dir, self.world_arg)

@@ -36,11 +36,10 @@ from fedjax_nav.evaluation.rollout import (
     RANGE_NOISE,
     EvalError,
     MemoryPolicy,
-    RunAgents,
-    RunEvaluation,
     episode_state,
     evaluate_policy,
 )
+from fedjax_nav.evaluation.run_data import RunAgents, RunEvaluation
 
 
 @functools.lru_cache(maxsize=16)

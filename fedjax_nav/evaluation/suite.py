@@ -45,7 +45,15 @@ from fedjax_nav.config import envs
 from fedjax_nav.env.nav import make_params
 from fedjax_nav.evaluation import paths
 from fedjax_nav.evaluation.limits import EvalError, check_counts, check_eval_memory
-from fedjax_nav.evaluation.rollout import ACTION_NOISE, ATTEMPTS, CHUNK, RANGE_NOISE, episode_state, eval_program
+from fedjax_nav.evaluation.rollout import (
+    ACTION_NOISE,
+    ATTEMPTS,
+    CHUNK,
+    RANGE_NOISE,
+    episode_state,
+    eval_program,
+    observed_program,
+)
 from fedjax_nav.evaluation.runs import RunAgents, load_run, run_policy
 from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
 from fedjax_nav.evaluation.suite_stats import TAIL, family_row
@@ -105,14 +113,16 @@ class SuiteProtocol:
         shape = (rooms, self.run.num_agents, self.shape[2], k)
         check_eval_memory(self.settings, state, shape, min(CHUNK, self.T), asked, budget, str(self.run.run_dir))
 
-    def rollout(self, rooms=None, k: int | None = None) -> dict:
+    def rollout(self, rooms=None, k: int | None = None, observations: bool = False) -> dict:
         """The episodes of `rooms` (indices of the suite's rooms; None: all), their first `k`
         attempts (None: all K), in one jitted, vmapped program: success, collision, timeout, steps,
-        path [rooms, A, G, k] and poses [rooms, A, G, k, T + 1, 3], numpy."""
+        path [rooms, A, G, k] and poses [rooms, A, G, k, T + 1, 3], numpy; with `observations` also
+        obs [rooms, A, G, k, T + 1, obs], the observation at each pose (`rollout.observed_program`)."""
         G = self.shape[2]
         pick = (lambda x: x) if rooms is None else (lambda x: x[np.asarray(rooms)])
         params, keys = jax.tree.map(pick, self.params), pick(self.keys())[:, :, : G * (k or self.K)]
-        program = _rooms_program(eval_program(self.settings, run_policy(self.run), min(CHUNK, self.T)))
+        make = observed_program if observations else eval_program
+        program = _rooms_program(make(self.settings, run_policy(self.run), min(CHUNK, self.T)))
         return jax.device_get(program(self.run.actor_params, params, jnp.arange(G, dtype=jnp.int32), keys))
 
 

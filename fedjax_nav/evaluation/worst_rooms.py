@@ -54,6 +54,7 @@ class WorstRooms:
     timeout: np.ndarray  # bool[n, A, G, k]
     steps: np.ndarray  # i32[n, A, G, k]
     poses: np.ndarray  # f32[n, A, G, k, T + 1, 3]; frozen after the episode's end
+    obs: np.ndarray | None = None  # f32[n, A, G, k, T + 1, obs] the observation at each pose (`observations`)
 
     def room(self, i: int) -> World:
         """The i-th chosen room (unstacked)."""
@@ -97,12 +98,19 @@ def kept_evaluation(run_dir, suite: str, folder=None) -> tuple[Path, dict, pd.Da
 
 
 def replay(
-    run_dir, suite: str = "heldout", rooms: int = ROOMS, attempts: int = 1, folder=None, choose=None
+    run_dir,
+    suite: str = "heldout",
+    rooms: int = ROOMS,
+    attempts: int = 1,
+    folder=None,
+    choose=None,
+    observations: bool = False,
 ) -> WorstRooms:
     """The `rooms` worst rooms (`rank_rooms`) of the kept evaluation of `run_dir` on `suite`
     (`kept_evaluation`), their episodes replayed with its protocol: every agent to every goal, the
     first `attempts` of its attempts (at most the evaluation's). `choose(episodes)`: other rooms,
-    `rank_rooms`' rows in the order wanted (e.g. those with the most failed detours)."""
+    `rank_rooms`' rows in the order wanted (e.g. those with the most failed detours).
+    `observations`: keep the observation at every pose too (`WorstRooms.obs`)."""
     check_counts(attempts)
     if not (isinstance(rooms, (int, np.integer)) and rooms >= 1):
         raise EvalError(f"rooms: must be an integer >= 1, got {rooms!r}")
@@ -129,7 +137,7 @@ def replay(
         raise EvalError(f"{folder / rundir.SUITE_JSON}: {K} attempts per agent, the run drives {protocol.K}")
     k, idx = min(int(attempts), K), ranked["room"].to_numpy()
     protocol.check(len(idx), k, k, None)
-    out = protocol.rollout(idx, k)
+    out = protocol.rollout(idx, k, observations)
     chosen = jax.device_get(jax.tree.map(lambda x: x[idx], world))
     return WorstRooms(
         folder,
@@ -140,6 +148,7 @@ def replay(
         np.asarray(run.agent_seed),
         np.asarray(run.agent_net),
         *(np.asarray(out[f]) for f in ("success", "collision", "timeout", "steps", "poses")),
+        np.asarray(out["obs"]) if observations else None,
     )
 
 
