@@ -6,6 +6,7 @@ resumes and is evaluated, and the refusal of a world whose start cannot reach it
 import io
 import json
 from contextlib import redirect_stderr, redirect_stdout
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -310,3 +311,28 @@ def test_the_brax_adapter_with_the_plan_on():
     s = jax.jit(b.reset)(jax.random.key(0))
     s = jax.jit(b.step)(s, jnp.zeros(2))
     assert s.obs.shape == (29,) and np.isfinite(np.asarray(s.obs)).all()
+
+
+def test_with_the_margin_the_walk_leaves_a_cell_whose_next_cells_are_hidden():
+    # a diagonal corridor of free cells (i, i), everything else blocked: from a point of cell (3, 3)
+    # off its centre the straight way to (2, 2)'s centre crosses a blocked cell (out of sight)
+    cells, size = 5, jnp.array([1.0, 1.0])
+    res = 0.2
+    diag = np.full((cells, cells), np.inf, np.float32)
+    for i in range(cells):
+        diag[i, i] = i * res * np.sqrt(2)
+    field, goal = jnp.asarray(diag), jnp.array([-0.4, -0.4])
+    _, xs, ys = (np.asarray(a) for a in plan.grid(size, cells))
+    xy = jnp.array([xs[3] + 0.03, ys[3] - 0.03])
+    walk = jax.jit(plan.waypoint)
+    stuck = np.asarray(walk(field, size, goal, xy, 0.5, None, False))
+    np.testing.assert_allclose(stuck, [xs[3], ys[3]], atol=1e-6)  # its own cell's centre: it would spin
+    moved = np.asarray(walk(field, size, goal, xy, 0.5, None, True))
+    np.testing.assert_allclose(moved, [xs[2], ys[2]], atol=1e-6)  # one step down, then the sight rule again
+    # `plan.at` (what the env's step calls) sets it where the margin is on
+    kept = plan.Plan(field, jnp.ones_like(field), jnp.zeros((1, 2)))
+    for m, want in ((0.0, stuck), (MARGIN, moved)):
+        p = SimpleNamespace(
+            world=SimpleNamespace(size=size), plan_lookahead=jnp.float32(0.5), plan_margin=jnp.float32(m)
+        )
+        np.testing.assert_allclose(np.asarray(plan.at(kept, p, goal, xy)), want, atol=1e-6)

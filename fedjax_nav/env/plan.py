@@ -192,7 +192,9 @@ def _neighbours(field: jax.Array, iy: jax.Array, ix: jax.Array):
     return jnp.where(on, field[ny, nx], INF), ny, nx, jnp.array(_STEP, jnp.float32)
 
 
-def waypoint(field: jax.Array, size, goal: jax.Array, xy: jax.Array, lookahead: jax.Array, cost=None) -> jax.Array:
+def waypoint(
+    field: jax.Array, size, goal: jax.Array, xy: jax.Array, lookahead: jax.Array, cost=None, first_step=False
+) -> jax.Array:
     """f32[2]: the point about `lookahead` m down the field from the robot at `xy`, in its sight.
 
     From the robot's cell (not free: its best free neighbour) the walk steps to the neighbour
@@ -202,7 +204,11 @@ def waypoint(field: jax.Array, size, goal: jax.Array, xy: jax.Array, lookahead: 
     in a free cell (the robot's own cell aside), so that the way to the waypoint keeps D_c up to
     half a cell's diagonal. The waypoint is the last cell's centre; the goal itself when the
     robot's path to the goal is at most `lookahead`, or when there is no path (the walk never
-    fails: a robot cut off from its goal sees the goal, as without the plan)."""
+    fails: a robot cut off from its goal sees the goal, as without the plan). `first_step` (bool,
+    traced; `make` and `at` set it where the margin is on): the walk's first step is taken without
+    the sight test, so that a robot whose every next cell is hidden behind an inflated corner is
+    not sent to its own cell's centre, where it would turn on the spot (docs/planning.md, "The
+    margin"); the margin keeps that step's way clear of the walls."""
     cells = field.shape[0]
     res, xs, ys = grid(size, cells)
     y0, x0 = cell_of(xy, size, cells)
@@ -227,7 +233,7 @@ def waypoint(field: jax.Array, size, goal: jax.Array, xy: jax.Array, lookahead: 
         v, vy, vx, steps = _neighbours(field, cy, cx)
         edge = res if cost is None else res * cost[cy, cx]
         j = jnp.argmin(v + steps * edge)
-        go = (v[j] < field[cy, cx]) & in_sight(vy[j], vx[j])
+        go = (v[j] < field[cy, cx]) & (in_sight(vy[j], vx[j]) | (first_step & (walked == 0)))
         return jnp.where(go, vy[j], cy), jnp.where(go, vx[j], cx), walked + steps[j] * res, go
 
     cy, cx, _, _ = lax.while_loop(cond, body, (iy, ix, jnp.float32(0.0), jnp.bool_(True)))
@@ -265,11 +271,12 @@ def make(params, goal: jax.Array, clearance: jax.Array, cells: int) -> Plan:
     radius, plan_lookahead and plan_margin), inflated by `clearance`."""
     world = params.world
     field, cost = goal_field(world, goal, clearance, params.goal_radius, cells, params.plan_margin)
-    walk = lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead, cost)  # noqa: E731
+    first = params.plan_margin > 0
+    walk = lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead, cost, first)  # noqa: E731
     starts = jax.vmap(walk)(world.starts[:, :2])
     return Plan(field, cost, starts)
 
 
 def at(plan: Plan, params, goal: jax.Array, xy: jax.Array) -> jax.Array:
     """f32[2]: the waypoint of `plan` for a robot at `xy` (`waypoint` with the params' lookahead)."""
-    return waypoint(plan.field, params.world.size, goal, xy, params.plan_lookahead, plan.cost)
+    return waypoint(plan.field, params.world.size, goal, xy, params.plan_lookahead, plan.cost, params.plan_margin > 0)
