@@ -1,9 +1,10 @@
 """A suite evaluation under changed env values (docs/planning.md, "The margin, and a scripted
 follower"): a run's own agents with traced env values overridden (e.g. the plan's margin and
-lookahead of a run trained without them), or, with --follower, the scripted follower
-(fedjax_nav.evaluation.baselines) in the env of a run or a config, through the learned policies'
-protocol. Written as `fedjax-nav evaluate --suite` writes it (suite.json, suite_families.csv,
-suite_episodes.csv), so scripts/suite_table.py sets it beside the runs'.
+lookahead of a run trained without them; and the plan's grid, `env.plan_cells`), or, with
+--follower, the scripted follower (fedjax_nav.evaluation.baselines) in the env of a run or a
+config, through the learned policies' protocol. Written as `fedjax-nav evaluate --suite` writes
+it (suite.json, suite_families.csv, suite_episodes.csv), so scripts/suite_table.py sets it beside
+the runs'.
 
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 --suite maze-50 --out x/m03
     python scripts/suite_with.py RUN --follower --suite dense-heldout --out runs/x/follower-dense
@@ -16,6 +17,10 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+
+# static settings a run's agents may be evaluated under: they change the compiled program, not the
+# observation the networks were built for (the plan's grid: a finer one for rooms larger than trained in)
+PROGRAM_ONLY = ("env.plan_cells",)
 
 
 def main(argv=None) -> int:
@@ -39,9 +44,13 @@ def main(argv=None) -> int:
     if (out / SUITE_JSON).exists():
         print(f"error: {out / SUITE_JSON} exists: choose another --out", file=sys.stderr)
         return 2
-    fixed = sorted(k for k in overridden_keys(a.set) if k not in traced_fields())
+    fixed = sorted(k for k in overridden_keys(a.set) if k not in (*traced_fields(), *PROGRAM_ONLY))
     if not a.follower and fixed:  # a run's networks were built for its static settings
-        print(f"error: --set {fixed[0]}: not a traced value; a run's agents take traced values only", file=sys.stderr)
+        print(
+            f"error: --set {fixed[0]}: not a traced value; a run's agents take traced values only "
+            f"(and {', '.join(PROGRAM_ONLY)})",
+            file=sys.stderr,
+        )
         return 2
     try:
         cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
