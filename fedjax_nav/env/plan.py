@@ -18,8 +18,8 @@ The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from th
 collision distance from every segment and circle (`geometry.nearest_distance`, the env's own
 exact distance). Rows are y, columns x: `field[iy, ix]`.
 
-The margin (`env.plan_margin`, m; docs/planning.md, "The margin"): a free cell whose clearance d
-is under D_c + margin costs more to leave, its edges' lengths times
+The margin (`env.plan_margin`, m; docs/planning.md, "The margin, and a scripted follower"): a
+free cell whose clearance d is under D_c + margin costs more to leave, its edges' lengths times
 1 + MARGIN_COST (1 - (d - D_c) / margin), so that the shortest path keeps away from walls where a
 short way round allows; margin 0 (the default) makes every multiplier 1.0 exactly, and the
 field, bit for bit, the plain length below.
