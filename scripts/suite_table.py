@@ -5,6 +5,7 @@ one seed or a scripted baseline], the worst tenth of rooms, collisions, time-out
 detour goals' success.
 
     python scripts/suite_table.py ideal=runs/a/eval/dense-heldout pooled=runs/b/eval/dense-heldout --csv results/x.csv
+    python scripts/suite_table.py "4 seeds"=runs/s01/eval/dense-heldout+runs/s23/eval/dense-heldout   # pooled seeds
 """
 
 from __future__ import annotations
@@ -19,16 +20,43 @@ COLUMNS = ["success", "ci_seeds_low", "ci_seeds_high", "worst10", "collision", "
 COLUMNS += ["success_direct", "success_detour"]
 
 
+def _kept(folder: str, name: str) -> Path:
+    f = Path(folder) / name
+    if not f.is_file():
+        raise SystemExit(f"error: {f}: no kept suite evaluation (run `fedjax-nav evaluate RUN --suite NAME` first)")
+    return f
+
+
+def pooled(folders: list[str]) -> pd.DataFrame:
+    """The families table of the episodes of several evaluations of one suite whose runs trained
+    other seeds (e.g. seeds 0-1 and 2-3 of one config): suite_families.csv recomputed over them all."""
+    import json
+
+    from fedjax_nav.evaluation.suite import suite_families
+
+    suites = {tuple(json.loads(_kept(f, "suite.json").read_text())["suites"]) for f in folders}
+    if len(suites) > 1:
+        raise SystemExit(f"error: {' + '.join(folders)}: evaluations of different suites cannot be pooled")
+    eps = [pd.read_csv(_kept(f, "suite_episodes.csv")) for f in folders]
+    seen: set = set()
+    for f, ep in zip(folders, eps):
+        if seen & set(ep["seed"]):
+            raise SystemExit(f"error: {f}: its seeds {sorted(seen & set(ep['seed']))} are pooled already")
+        seen |= set(ep["seed"])
+    ep = pd.concat(eps, ignore_index=True)
+    return suite_families(ep, list(dict.fromkeys(ep["family"])))
+
+
 def table(pairs: list[str]) -> pd.DataFrame:
+    """One row per label and family; LABEL=FOLDER1+FOLDER2 pools evaluations of other seeds."""
     rows = []
     for pair in pairs:
         label, _, folder = pair.partition("=")
         if not folder:
             raise SystemExit(f"error: {pair!r} is not LABEL=FOLDER")
-        f = Path(folder) / "suite_families.csv"
-        if not f.is_file():
-            raise SystemExit(f"error: {f}: no kept suite evaluation (run `fedjax-nav evaluate RUN --suite NAME` first)")
-        rows.append(pd.read_csv(f)[["family", *COLUMNS]].assign(label=label))
+        parts = folder.split("+")
+        fams = pooled(parts) if len(parts) > 1 else pd.read_csv(_kept(folder, "suite_families.csv"))
+        rows.append(fams[["family", *COLUMNS]].assign(label=label))
     return pd.concat(rows)[["label", "family", *COLUMNS]]
 
 

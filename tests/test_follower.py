@@ -97,3 +97,24 @@ def test_a_runs_agents_under_a_traced_value_changed(tmp_path, capsys):
     assert ep["a"]["timeout"].all() and ep["b"]["success"].all()  # 4x the speed: 6 m in time
     assert suite_with.main([*base, "--set", "env.num_beams=12", "--out", str(tmp_path / "c")]) == 2
     assert "env.num_beams: not a traced value" in capsys.readouterr().err
+
+
+def test_suite_table_pools_the_evaluations_of_other_seeds(walled, tmp_path):
+    spec = importlib.util.spec_from_file_location("suite_table", ROOT / "scripts" / "suite_table.py")
+    suite_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(suite_table)
+    from fedjax_nav.evaluation.suite import write_suite
+
+    folders = []
+    for seed, plan in ((0, True), (2, False)):  # one arrives, one drives into the wall
+        env = {"episode_length": 300, "plan": plan, "plan_cells": 32, "plan_margin": 0.3}
+        cfg = from_dict({"learner": "ppo", "method": "snddpg", "env": env, "run": {"seeds": 1, "seed": seed}})
+        write_suite(evaluate_suite(follower_run(cfg, tmp_path), str(walled), attempts=2), tmp_path / f"s{seed}")
+        folders.append(str(tmp_path / f"s{seed}"))
+    t = suite_table.table([f"both={'+'.join(folders)}"])
+    row = t[t.family == "all"].iloc[0]
+    assert row.success == 0.5 and row.collision == 0.5  # 2 episodes of each seed
+    fams = suite_table.pooled(folders)
+    assert fams.loc[fams.family == "all", "seeds"].item() == 2
+    with pytest.raises(SystemExit, match="pooled already"):
+        suite_table.pooled([folders[0], folders[0]])

@@ -206,7 +206,7 @@ def evaluate_suite(
         (sp, sp_s), waited = shortest.result(), time.time() - t0 - wall
     valid = np.arange(G)[None, :] < np.asarray(world.num_goals)[:, None]  # [R, G]
     ep = _suite_episodes(run, world, families, room_seeds, out, sp, valid, float(values["goal_radius"]))
-    fams = _suite_families(ep, families)
+    fams = suite_families(ep, families)
     summary = {
         "run_dir": str(run.run_dir),
         "method": cfg.method,
@@ -279,7 +279,7 @@ def _suite_episodes(
     )[keep].reset_index(drop=True)
 
 
-def _suite_families(ep: pd.DataFrame, families) -> pd.DataFrame:
+def suite_families(ep: pd.DataFrame, families) -> pd.DataFrame:
     """suite_families.csv: `family_row` of each family of the suite (in the suite's order), then of all."""
     return pd.DataFrame(
         [
