@@ -30,6 +30,7 @@ from fedjax_nav import worlds as _worlds
 from fedjax_nav.env import plan as gp
 from fedjax_nav.env import robot as rm
 from fedjax_nav.env.geometry import lidar, nearest_distance
+from fedjax_nav.env.robot import unicycle  # the motion; also `fedjax_nav.env.nav.unicycle`
 from fedjax_nav.env.spaces import Box
 from fedjax_nav.worlds import World
 
@@ -272,7 +273,7 @@ class NavEnv:
         if self.noise:
             a_exec = jnp.clip(a_exec + params.action_noise * jax.random.normal(k_act, (2,)), lo, hi)
         if self.robot:
-            pose, vel = self._move(state.pose, state.vel, a_exec, params)
+            pose, vel = rm.move(state.pose, state.vel, a_exec, params, self.substeps)
         else:
             pose, vel = unicycle(state.pose, a_exec[0] * params.v_max, a_exec[1] * params.omega_max, params.dt), None
         dist = jnp.linalg.norm(state.goal - pose[:2])
@@ -326,18 +327,6 @@ class NavEnv:
         } | info
         return obs, moved, reward, terminated, truncated, info
 
-    def _move(self, pose: jax.Array, vel: jax.Array, a_exec: jax.Array, params: EnvParams):
-        """robot=True: `substeps` physics steps of dt / substeps; in each the executed velocities
-        move towards the command by at most accel * dt / substeps, then the unicycle integrates."""
-        h = params.dt / self.substeps
-        v_cmd, w_cmd = a_exec[0] * params.v_max, a_exec[1] * params.omega_max
-        v, w = vel[0], vel[1]
-        for _ in range(self.substeps):
-            v = rm.limit_rate(v, v_cmd, params.accel_lin, h)
-            w = rm.limit_rate(w, w_cmd, params.accel_ang, h)
-            pose = unicycle(pose, v, w, h)
-        return pose, jnp.stack([v, w])
-
     # ------------------------------------------------------------------ gymnax conventions
     #
     # What JAX-native code written for gymnax expects of an env: `env.default_params`,
@@ -377,24 +366,6 @@ class NavEnv:
     def action_space(self, params: EnvParams | None = None) -> Box:
         """Box f32[2]: (v / v_max, omega / omega_max) in [0, 1] x [-1, 1], what `step` clips to."""
         return Box(jnp.array([0.0, -1.0], jnp.float32), jnp.array([1.0, 1.0], jnp.float32), (2,), jnp.float32)
-
-
-def unicycle(pose: jax.Array, v: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:
-    """Exact arc integration of x' = v cos th, y' = v sin th, th' = omega over dt."""
-    x, y, th = pose[0], pose[1], pose[2]
-    th2 = th + omega * dt
-    # The arc's chord: length v dt sinc(omega dt / 2) along the midpoint heading. Equal to
-    # v / omega (sin th2 - sin th, cos th - cos th2) but without its float32 cancellation, which
-    # cost up to 2 mm per 2.5 cm step at omega dt ~ 1e-6..1e-4.
-    h = 0.5 * omega * dt
-    small = jnp.abs(h) < 1e-3
-    sinc = jnp.where(small, 1.0 - h * h / 6.0, jnp.sin(h) / jnp.where(small, 1.0, h))
-    chord = v * dt * sinc
-    thm = th + h
-    x2 = x + chord * jnp.cos(thm)
-    y2 = y + chord * jnp.sin(thm)
-    th2 = jnp.arctan2(jnp.sin(th2), jnp.cos(th2))
-    return jnp.stack([x2, y2, th2])
 
 
 def make_params(world: World, **overrides) -> EnvParams:

@@ -111,3 +111,35 @@ def measure(
 def lidar_pose(pose: jax.Array, offset: jax.Array) -> jax.Array:
     """The lidar's pose: `offset` m ahead of the centre along the heading (negative: behind)."""
     return pose + jnp.stack([offset * jnp.cos(pose[2]), offset * jnp.sin(pose[2]), 0.0 * offset])
+
+
+def unicycle(pose: jax.Array, v: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:
+    """Exact arc integration of x' = v cos th, y' = v sin th, th' = omega over dt."""
+    x, y, th = pose[0], pose[1], pose[2]
+    th2 = th + omega * dt
+    # The arc's chord: length v dt sinc(omega dt / 2) along the midpoint heading. Equal to
+    # v / omega (sin th2 - sin th, cos th - cos th2) but without its float32 cancellation, which
+    # cost up to 2 mm per 2.5 cm step at omega dt ~ 1e-6..1e-4.
+    h = 0.5 * omega * dt
+    small = jnp.abs(h) < 1e-3
+    sinc = jnp.where(small, 1.0 - h * h / 6.0, jnp.sin(h) / jnp.where(small, 1.0, h))
+    chord = v * dt * sinc
+    thm = th + h
+    x2 = x + chord * jnp.cos(thm)
+    y2 = y + chord * jnp.sin(thm)
+    th2 = jnp.arctan2(jnp.sin(th2), jnp.cos(th2))
+    return jnp.stack([x2, y2, th2])
+
+
+def move(pose: jax.Array, vel: jax.Array, a_exec: jax.Array, params, substeps: int):
+    """A modelled robot's drive (NavEnv's robot=True): `substeps` physics steps of dt / substeps;
+    in each the executed velocities move towards the command by at most accel * dt / substeps,
+    then the unicycle integrates. Returns (pose, the velocities reached f32[2])."""
+    h = params.dt / substeps
+    v_cmd, w_cmd = a_exec[0] * params.v_max, a_exec[1] * params.omega_max
+    v, w = vel[0], vel[1]
+    for _ in range(substeps):
+        v = limit_rate(v, v_cmd, params.accel_lin, h)
+        w = limit_rate(w, w_cmd, params.accel_ang, h)
+        pose = unicycle(pose, v, w, h)
+    return pose, jnp.stack([v, w])
