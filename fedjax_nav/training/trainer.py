@@ -28,6 +28,9 @@ points): the env's `EnvParams` are built from it inside the program, so a sweep 
 
 Per-step values (`StepMetrics`) are summed in the step scan's carry, then made episode metrics
 (`EPISODE_METRICS`: one line per metric; training/step_metrics.py). Shared rooms: env/shared.py.
+
+This module holds the run's description and its entry points (init, chunk, compiled_chunk); the
+step and the episode's scan are training/episode.py's functions of it.
 """
 
 from __future__ import annotations
@@ -35,7 +38,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
 import jax
@@ -44,27 +46,24 @@ import numpy as np
 
 from fedjax_nav import methods, worlds
 from fedjax_nav.agents import learners
-from fedjax_nav.agents.distributions import ACTION_HIGH, ACTION_LOW
-from fedjax_nav.agents.learners import Record
 from fedjax_nav.config import Config, envs, values
 from fedjax_nav.env import shared
 from fedjax_nav.env.nav import EnvParams
-from fedjax_nav.training import federation, slices, step_metrics
+from fedjax_nav.training import episode, federation, slices
 from fedjax_nav.training.hparams import HParams, hp_axes, hparams_from_config
 from fedjax_nav.training.metrics import Facts
 from fedjax_nav.training.probe import Probe
 from fedjax_nav.training.rooms import TrainRooms
 from fedjax_nav.training.rooms import density as room_density  # the curriculum's, not an env field
 from fedjax_nav.training.state import TrainState
-from fedjax_nav.training.step_metrics import EPISODE_METRICS, NO_ROUND, StepMetrics, all_finite, loss_metrics
 
 
 @dataclass(frozen=True, eq=False, init=False)
 class Trainer:
     """A run's program: the frozen description of its structure, built once from the config
     (padded with the mesh's masked clients), and the pure functions over it that make the compiled
-    program (`init`, `episode`, `chunk`; `compiled_chunk` jits a chunk). Nothing here changes after
-    `__init__`; the federated round and the host's tables take only what they need of it
+    program (`init`, `episode` (training/episode.py), `chunk`; `compiled_chunk` jits a chunk).
+    Nothing here changes after `__init__`; the federated round and the host's tables take only what they need of it
     (`round`: a `federation.Round`; `facts()`: a `metrics.Facts`)."""
 
     cfg: Config  # the padded config: env.worlds holds the padding clients' rooms too
@@ -177,7 +176,7 @@ class Trainer:
         """The greedy policies' parameters (leaves [n_nets, ...]): what the probe drives."""
         return self.learner.policy(agents)
 
-    def _split(self, key: jax.Array, per_robot: int, draw=None) -> jax.Array:
+    def robot_rows(self, key: jax.Array, per_robot: int, draw=None) -> jax.Array:
         """Our robots' rows of a per-robot draw (`slices.rows`; split(key, rows) by default)."""
         draw = draw or (lambda n: jax.random.split(key, n))
         return slices.rows(draw, per_robot, self.num_robots, self.fleet) if per_robot else draw(1)
@@ -188,7 +187,7 @@ class Trainer:
         """One seed's initial agents (`init`'s): every agent its own initialisation key."""
         k_nets = jax.random.split(key, 3)[0]
         init = lambda k: self.learner.init(self.nets, k, self.obs_size, hp)
-        return jax.vmap(init)(self._split(k_nets, not self.method.shared_network))
+        return jax.vmap(init)(self.robot_rows(k_nets, not self.method.shared_network))
 
     def init_agg_state(self, agents, hp: HParams):
         """The aggregator's initial state over the initial agents (the padding clients left out)."""
@@ -206,7 +205,7 @@ class Trainer:
             if self.rooms.learnability:  # its slot 0 holds block 0's room: the world just drawn
                 optional["bank"] = self.rooms.init_bank(stream)
         params = self.env_params(hp, optional.get("world"))
-        obs, env_state = jax.vmap(self.env.reset)(self._split(k_env, self.envs_per_robot), params)
+        obs, env_state = jax.vmap(self.env.reset)(self.robot_rows(k_env, self.envs_per_robot), params)
         memory = L.memory(self.nets)
         if memory is not None:
             optional["memory"] = jax.tree.map(lambda x: jnp.broadcast_to(x, (self.num_envs, *x.shape)), memory)
@@ -236,7 +235,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ pieces
 
-    def _by_net(self, fn, agents, *per_env):
+    def by_net(self, fn, agents, *per_env):
         """fn(agent, *rows) for every environment row with its robot's network (the one network
         of a shared-network method); per_env leaves [environments, ...], and so are the outputs."""
         in_axes = (None,) + (0,) * len(per_env)
@@ -249,155 +248,25 @@ class Trainer:
         out = jax.vmap(jax.vmap(fn, in_axes=in_axes))(agents, *split)
         return jax.tree.map(lambda x: x.reshape(self.num_envs, *x.shape[2:]), out)
 
-    def _explore(self, state: TrainState, key: jax.Array, hp: HParams):
-        """(actions f32[environments, 2], the learner's extras, its new memory) for one step."""
-
-        def one(agent, obs, k, memory, first):
-            return self.learner.explore(self.nets, agent, obs, k, hp, state.explore, memory, first)
-
-        keys = self._split(key, self.envs_per_robot)
-        return self._by_net(one, state.agents, state.obs, keys, state.memory, state.first)
-
     def _act(self, state: TrainState, key: jax.Array, hp: HParams | None = None) -> jax.Array:
         """The exploration actions f32[environments, 2] (hp: default the config's)."""
-        return self._explore(state, key, hparams_from_config(self.cfg) if hp is None else hp)[0]
+        return episode.explore(self, state, key, hparams_from_config(self.cfg) if hp is None else hp)[0]
 
-    def _per_robot(self, x: jax.Array, reduce=jnp.sum) -> jax.Array:
+    def per_robot(self, x: jax.Array, reduce=jnp.sum) -> jax.Array:
         """[environments] -> [robots]: `reduce` over each robot's environments (x itself when 1)."""
         return x if self.envs_per_robot == 1 else reduce(x.reshape(self.num_robots, self.envs_per_robot), axis=1)
 
     def _update(self, agents, buffers, key, g, hp: HParams):
         """One update event of every network, each on its own storage (or all on the shared one)."""
-
-        def one(agent, buf, k):
-            return self.learner.update(self.nets, agent, buf, k, g, self.writes, hp)
-
-        keys = self._split(key, not self.method.shared_network)
-        buf_axis = 0 if self.n_bufs == self.n_nets else None
-        bufs = buffers if buf_axis == 0 else jax.tree.map(lambda b: b[0], buffers)
-        return jax.vmap(one, in_axes=(0, buf_axis, 0))(agents, bufs, keys)
+        return episode.update(self, agents, buffers, key, g, hp)
 
     def federated_round(self, state: TrainState, hp: HParams) -> tuple[TrainState, dict]:
         """One federated round: the state and its stats (`training.federation.federated_round`)."""
         return federation.federated_round(self.round, state, hp)
 
-    def _step(self, hp: HParams, env_params: EnvParams, state: TrainState, g):
-        """One env step of every environment, with the periodic updates. g: global step (unbatched).
-        Returns the new state and this step's `StepMetrics`."""
-        L = self.learner
-        key, k_act, k_env, k_upd = jax.random.split(state.key, 4)
-        actions, extra, memory = self._explore(state, k_act, hp)
-        if not L.on_policy:  # the warm-up (offpolicy.random_steps): its own key, the other streams unchanged
-            k = jax.random.fold_in(k_act, 1)
-            draw = lambda n: jax.random.uniform(k, (n, *actions.shape[1:]), minval=ACTION_LOW, maxval=ACTION_HIGH)
-            warm = self._split(k, self.envs_per_robot, draw)
-            actions = jnp.where(g < hp.offpolicy.random_steps, warm, actions)
-        env_keys = self._split(k_env, self.envs_per_robot)
-        obs2, env_state, reward, term, trunc, info = self.env_step(env_keys, state.env_state, actions, env_params)
-        # s' is the true observation at the pose reached, also on a terminal step (obs2 is then
-        # the start of the next attempt): `terminated` cuts the bootstrap there, `truncated` does not.
-        rec = Record(state.obs, actions, reward, info["final_obs"], term, trunc, state.first, extra, state.memory)
-        rec = jax.tree.map(lambda x: x.reshape(self.n_bufs, self.writes, *x.shape[1:]), rec)
-        buffers = jax.vmap(lambda b, r: L.store(self.nets, b, r, g, self.writes, hp))(state.buffers, rec)
-
-        do_update = L.due(self.nets, g, self.writes, hp)
-        zeros = jnp.zeros(self.n_nets)
-        agents, losses = jax.lax.cond(
-            do_update,
-            lambda a: self._update(a, buffers, k_upd, g, hp),
-            lambda a: (a, {m: zeros for m in L.metrics}),
-            state.agents,
-        )
-        if L.targets is not None:  # a target update of its own period (DDPG's T_target)
-            agents = jax.lax.cond(
-                L.targets_due(self.nets, g, self.writes, hp),
-                lambda a: jax.vmap(lambda x: L.targets(self.nets, x, hp))(a),
-                lambda a: a,
-                agents,
-            )
-        mean_reward = self._per_robot(reward, jnp.mean)
-        state = state.replace(
-            agents=agents,
-            buffers=buffers,
-            env_state=env_state,
-            obs=obs2,
-            key=key,
-            explore=self.learner.explore_next(state.explore, hp),
-            reward_sum=state.reward_sum + mean_reward,
-            reward_steps=state.reward_steps + 1.0,
-            memory=memory,
-            first=None if state.first is None else term,  # after a goal or collision obs2 is a start
-        )
-        outcome = {}
-        if self.rooms.learnability:  # per environment, for its room's score: an attempt ends in a goal,
-            # a collision (terminated) or the episode's time-out (truncated, the last step only)
-            outcome = {"env_goals": info["goal"].astype(jnp.int32), "env_attempts": (term | trunc).astype(jnp.int32)}
-        if self.rooms.shared:  # robot i's collisions with the robots of its rooms (also in `collisions`)
-            outcome["robot_collisions"] = self._per_robot(info["robot_collision"].astype(jnp.int32))
-        fed_now, fs = jnp.bool_(False), NO_ROUND
-        if self.rounds and self.cfg.fed.period_unit == "steps":
-            fed_now = (g + 1) % hp.fed.period == 0
-            state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
-        out = StepMetrics(
-            reward=mean_reward,
-            goals=self._per_robot(info["goal"].astype(jnp.int32)),
-            collisions=self._per_robot(info["collision"].astype(jnp.int32)),
-            losses=losses,
-            updates=do_update.astype(jnp.int32),
-            fed_events=fed_now.astype(jnp.int32),
-            fed_clients=fs["clients"],
-            fed_skipped=fs["skipped"],
-            **outcome,
-        )
-        return state, out
-
     def episode(self, state: TrainState, hp: HParams, ep: jax.Array) -> tuple[TrainState, dict]:
-        """One episode of T steps for one seed; ep (the episode index) must be unbatched."""
-        state, world = self.rooms.episode_world(state, hp, ep)  # new rooms / placements when configured
-        env_params = self.env_params(hp, world)
-        key, k_reset = jax.random.split(state.key)
-        obs, env_state = jax.vmap(self.env.reset)(self._split(k_reset, self.envs_per_robot), env_params)
-        first = None if state.first is None else jnp.ones_like(state.first)
-        state = state.replace(obs=obs, env_state=env_state, key=key, first=first)
-        steps = ep * self.T + jnp.arange(self.T)
-        step = partial(self._step, hp, env_params)
-
-        def body(carry, g):  # the step metrics are summed in the carry: see EPISODE_METRICS
-            state, sums = carry
-            state, m = step(state, g)
-            return (state, jax.tree.map(jnp.add, sums, m)), None
-
-        zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(step, state, steps[0])[1])
-        (state, sums), _ = jax.lax.scan(body, (state, zeros), steps)
-        if self.rooms.learnability:  # the episode's goal share scores each environment's room
-            state = state.replace(bank=self.rooms.score(state.bank, hp, sums.env_goals, sums.env_attempts))
-        fed_end, fs = jnp.int32(0), NO_ROUND
-        if self.rounds and self.cfg.fed.period_unit == "episodes":
-            fed_now = (ep + 1) % hp.fed.period == 0
-            state, fs = jax.lax.cond(fed_now, lambda s: self.federated_round(s, hp), lambda s: (s, NO_ROUND), state)
-            fed_end = fed_now.astype(jnp.int32)
-        metrics = {name: reduce(sums, self.T) for name, reduce in EPISODE_METRICS.items()}
-        metrics |= loss_metrics(sums, self.learner.metrics) | step_metrics.optional_metrics(sums)
-        metrics["fed_events"] = metrics["fed_events"] + fed_end
-        metrics["fed_clients"] = metrics["fed_clients"] + fs["clients"]
-        metrics["fed_skipped"] = metrics["fed_skipped"] + fs["skipped"]
-        metrics["epsilon"] = self.learner.explore_metric(state.explore)
-        metrics["params_finite"] = jax.vmap(all_finite)(self.learner.shared(state.agents))  # [n_nets]
-        if self.rooms.learnability:  # room_p, fresh_rooms: [robots], means over each robot's environments
-            metrics |= {k: self._per_robot(v, jnp.mean) for k, v in self.rooms.bank_metrics(state.bank).items()}
-        if self.probe is not None:  # run.eval_every: greedy success on the held-out probe, NaN between
-            every = self.cfg.run.eval_every
-            metrics["eval_success"] = jax.lax.cond(
-                (ep + 1) % every == 0,
-                lambda a: self.probe.success(a, hp),
-                lambda a: jnp.full(self.n_nets, jnp.nan),
-                self.policy(state.agents),
-            )
-        if self.pad:  # the padding clients' rows are not results
-            metrics = jax.tree.map(
-                lambda x: x[: self.n_real] if x.ndim and x.shape[0] == self.num_robots else x, metrics
-            )
-        return state, metrics
+        """One episode of T steps for one seed (training/episode.py); ep must be unbatched."""
+        return episode.episode(self, state, hp, ep)
 
     def real_rows(self, tree):
         """Leaves [clients, ...] without the padding clients (`pad`)."""
