@@ -4,11 +4,14 @@ lookahead of a run trained without them; and the plan's grid, `env.plan_cells`),
 --follower, the scripted follower (fedjax_nav.evaluation.baselines) in the env of a run or a
 config, through the learned policies' protocol. Written as `fedjax-nav evaluate --suite` writes
 it (suite.json, suite_families.csv, suite_episodes.csv), so scripts/suite_table.py sets it beside
-the runs'.
+the runs'. With --robots-per-room K,..: K robots per room (docs/shared_rooms.md, "Evaluation"),
+written as `fedjax-nav evaluate --robots-per-room` writes it (shared.json, shared_families.csv,
+shared_episodes.csv).
 
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 --suite maze-50 --out x/m03
     python scripts/suite_with.py RUN --follower --suite dense-heldout --out runs/x/follower-dense
     python scripts/suite_with.py configs/learners/ppo.yaml --follower --set env.plan=true --suite heldout --out runs/x/f
+    python scripts/suite_with.py RUN --set env.plan_margin=0.3 --robots-per-room 1,2,4,8 --suite dense-heldout --out x/k
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ def main(argv=None) -> int:
     ap.add_argument("--suite", default="dense-heldout")
     ap.add_argument("--attempts", type=int, default=1)
     ap.add_argument("--out", required=True, help="the evaluation's folder (refused when it holds one)")
+    ap.add_argument("--robots-per-room", default=None, help="K robots per room, e.g. 1,2,4,8 (default: one per room)")
     a = ap.parse_args(argv)
 
     from fedjax_nav.config import ConfigError, load_config, traced_fields
@@ -38,11 +42,19 @@ def main(argv=None) -> int:
     from fedjax_nav.evaluation.baselines import follower_run
     from fedjax_nav.evaluation.limits import EvalError
     from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.shared_rooms import evaluate_shared, write_shared
     from fedjax_nav.evaluation.suite import SUITE_JSON, evaluate_suite, write_suite
+    from fedjax_nav.rundir import SHARED_JSON
 
     src, out = Path(a.source), Path(a.out)
-    if (out / SUITE_JSON).exists():
-        print(f"error: {out / SUITE_JSON} exists: choose another --out", file=sys.stderr)
+    for name in (SUITE_JSON, SHARED_JSON):
+        if (out / name).exists():
+            print(f"error: {out / name} exists: choose another --out", file=sys.stderr)
+            return 2
+    try:
+        ks = [int(k) for k in a.robots_per_room.split(",")] if a.robots_per_room else None
+    except ValueError:
+        print(f"error: --robots-per-room: integers separated by commas, got {a.robots_per_room!r}", file=sys.stderr)
         return 2
     fixed = sorted(k for k in overridden_keys(a.set) if k not in (*traced_fields(), *PROGRAM_ONLY))
     if not a.follower and fixed:  # a run's networks were built for its static settings
@@ -55,10 +67,19 @@ def main(argv=None) -> int:
     try:
         cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
         run = follower_run(cfg, out) if a.follower else dataclasses.replace(load_run(src), cfg=cfg)
-        res = evaluate_suite(run, a.suite, attempts=a.attempts)
+        if ks is not None:
+            res = evaluate_shared(run, a.suite, ks, attempts=a.attempts)
+        else:
+            res = evaluate_suite(run, a.suite, attempts=a.attempts)
     except (ConfigError, EvalError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if ks is not None:
+        cols = ["robots_per_room", "family", "success", "worst10", "collision", "robot_collision", "timeout"]
+        print(res["families"][cols].to_string(index=False))
+        write_shared(res, out)
+        print(f"wrote {out}/")
+        return 0
     fams = res["families"]
     print(fams[["family", "rooms", "success", "worst10", "collision", "timeout"]].to_string(index=False))
     print("wrote " + ", ".join(str(p) for p in write_suite(res, out)))

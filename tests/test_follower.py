@@ -118,3 +118,23 @@ def test_suite_table_pools_the_evaluations_of_other_seeds(walled, tmp_path):
     assert fams.loc[fams.family == "all", "seeds"].item() == 2
     with pytest.raises(SystemExit, match="pooled already"):
         suite_table.pooled([folders[0], folders[0]])
+
+
+def test_a_runs_agents_under_a_traced_value_changed_with_k_robots_per_room(tmp_path, capsys):
+    from test_suite_dir import ROOMS, constant_run
+
+    rooms = tmp_path / "rooms"
+    rooms.mkdir()
+    (rooms / "far.json").write_text(json.dumps(ROOMS["far.yml"]))
+    run = constant_run(tmp_path / "run")  # full speed straight on
+    base = [str(run), "--suite", str(rooms), "--robots-per-room", "1"]
+    assert suite_with.main([*base, "--out", str(tmp_path / "a")]) == 0
+    assert suite_with.main([*base, "--set", "env.v_max=1.0", "--out", str(tmp_path / "b")]) == 0
+    fams = {k: pd.read_csv(tmp_path / k / "shared_families.csv") for k in "ab"}
+    assert (fams["a"]["timeout"] == 1.0).all() and (fams["b"]["success"] == 1.0).all()
+    assert json.loads((tmp_path / "b" / "shared.json").read_text())["robots_per_room"] == [1]
+    assert suite_with.main([*base, "--out", str(tmp_path / "b")]) == 2  # kept, not overwritten
+    assert "shared.json exists" in capsys.readouterr().err
+    bad = [str(run), "--suite", str(rooms), "--robots-per-room", "two", "--out", str(tmp_path / "c")]
+    assert suite_with.main(bad) == 2
+    assert "--robots-per-room" in capsys.readouterr().err
