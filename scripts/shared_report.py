@@ -7,6 +7,10 @@ time-out, a deadlock.
 
     python scripts/shared_report.py runs/sweeps/shared_1e7                       # mixture-50, K = 1, 2, 4, 8
     python scripts/shared_report.py runs/sweeps/shared_1e7 --csv results/shared_1e7.csv
+
+Several folders pool their points' seeds (a sweep's seeds trained in two sweeps, e.g. shared_td3_1e7
+and shared_td3_1e7_seeds): one row per (method, trained, budget, K) over every seed of every folder;
+a seed twice for one row is refused (the same training pooled twice).
 """
 
 from __future__ import annotations
@@ -36,25 +40,46 @@ def episodes(point: Path, suite: str, ks: list[int], max_steps: int | None) -> p
     return pd.read_csv(out / rundir.SHARED_EPISODES)
 
 
-def rows(folder: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
-    table = []
-    for point in sorted(rundir.points_dir(folder).iterdir()):
-        if not (point / rundir.PARAMS).exists():
-            print(f"{point.name}: not trained yet, left out", file=sys.stderr)
-            continue
+def trained_points(folders: list[Path]) -> list[Path]:
+    """The trained points of every folder (the untrained named on stderr and left out)."""
+    points = []
+    for folder in folders:
+        for point in sorted(rundir.points_dir(folder).iterdir()):
+            if (point / rundir.PARAMS).exists():
+                points.append(point)
+            else:
+                print(f"{point.name}: not trained yet, left out", file=sys.stderr)
+    return points
+
+
+def rows(folders, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
+    """One row per (method, trained, agent-steps, K), pooled over the points' seeds."""
+    groups: dict[tuple, list] = {}
+    for point in trained_points([Path(f) for f in ([folders] if isinstance(folders, (str, Path)) else folders)]):
         cfg = rundir.read_config(point)
         metrics = pd.read_csv(point / rundir.METRICS)
-        last = metrics[metrics.episode >= metrics.episode.max() - 4]  # training's last 5 episodes
+        steps = int(cfg.run.episodes * cfg.env.episode_length * cfg.env.envs_per_robot * cfg.num_robots)
+        key = (METHODS.get(cfg.method, cfg.method), "shared rooms" if cfg.env.shared_rooms else "alone", steps)
+        groups.setdefault(key, []).append(
+            (point, episodes(point, suite, ks, max_steps), metrics[metrics.episode >= metrics.episode.max() - 4])
+        )
+    table = []
+    for (method, trained, steps), members in groups.items():
+        seeds = [set(ep["seed"]) for _, ep, _ in members]
+        if len(set().union(*seeds)) < sum(map(len, seeds)):
+            names = ", ".join(p.name for p, _, _ in members)
+            raise SystemExit(f"error: {method}, {trained}: a seed is in more than one of the points {names}")
+        ep = pd.concat([e for _, e, _ in members], ignore_index=True)
+        last = pd.concat([m for _, _, m in members], ignore_index=True)  # training's last 5 episodes
         ends = int(last["goals"].sum() + last["collisions"].sum())
-        ep = episodes(point, suite, ks, max_steps)
         for k, part in ep.groupby("robots_per_room"):
             per_seed = part.groupby("seed")["success"].mean().to_numpy()
             per_room = part.groupby("room")["success"].mean().to_numpy()
             lo, hi = bootstrap_ci(per_seed)
             table.append(
                 {
-                    "method": METHODS.get(cfg.method, cfg.method),
-                    "trained": "shared rooms" if cfg.env.shared_rooms else "alone",
+                    "method": method,
+                    "trained": trained,
                     "robots_per_room": int(k),
                     "seeds": len(per_seed),
                     "success": float(part["success"].mean()),
@@ -69,10 +94,8 @@ def rows(folder: Path, suite: str, ks: list[int], max_steps: int | None) -> pd.D
                     "train_robot_share": float(last["robot_collisions"].sum() / max(ends, 1))
                     if "robot_collisions" in last
                     else np.nan,
-                    "agent_steps": int(
-                        cfg.run.episodes * cfg.env.episode_length * cfg.env.envs_per_robot * cfg.num_robots
-                    ),
-                    "point": point.name,
+                    "agent_steps": steps,
+                    "point": "+".join(p.name for p, _, _ in members),
                 }
             )
     return pd.DataFrame(table).sort_values(["robots_per_room", "method", "trained"]).reset_index(drop=True)
@@ -93,16 +116,16 @@ def markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("folder", type=Path)
+    ap.add_argument("folders", type=Path, nargs="+", help="sweep folders (several: their seeds pooled)")
     ap.add_argument("--suite", default="mixture-50")
     ap.add_argument("--robots-per-room", default="1,2,4,8")
     ap.add_argument("--max-steps", type=int, default=None)
     ap.add_argument("--csv", default=None, help="write the table here too (e.g. results/shared_1e7.csv)")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     ks = sorted({int(k) for k in a.robots_per_room.split(",")})
-    df = rows(a.folder, a.suite, ks, a.max_steps)
+    df = rows(a.folders, a.suite, ks, a.max_steps)
     if a.csv:
         rundir.atomic_write(Path(a.csv), lambda p: df.to_csv(p, index=False))
     print(markdown(df))
