@@ -36,6 +36,9 @@ the corners where this room can touch them. So start -> hub -> doors -> hub -> g
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -50,6 +53,16 @@ def swap_xy(p, flip):
     """Frame -> room coordinates: swap x and y of every point (last axis a multiple of 2)."""
     q = p.reshape(*p.shape[:-1], -1, 2)
     return jnp.where(flip, q[..., ::-1], q).reshape(p.shape)
+
+
+def flip_endpoints(ep: Endpoints, flip) -> Endpoints:
+    """The endpoints drawn in the frame, in room coordinates (`swap_xy` of each point)."""
+    return ep._replace(
+        starts=swap_xy(ep.starts, flip),
+        start_anchor=swap_xy(ep.start_anchor, flip),
+        goals=swap_xy(ep.goals, flip),
+        goal_anchor=swap_xy(ep.goal_anchor, flip),
+    )
 
 
 def grid_lines(u, n, N: int, L, jitter: float):
@@ -144,6 +157,90 @@ def _doors(rng: Uniforms, spec: RoomSpec, lo, hi, present, tree, axis: int, c: f
     return door, jnp.where(door, w, 0.0), pieces, jnp.stack([present, door], -1), point(t, at - c), point(t, at + c)
 
 
+class Furniture(NamedTuple):
+    """An office floor's furniture in the frame: desk rows (centre, sides) and cylinder rows
+    (centre, radius), compacted to their slots, with how many were placed; what was asked for and
+    what fitted but found no slot (info's furniture_requested, furniture_dropped)."""
+
+    desks: jax.Array  # f32[office_boxes, 4]
+    n_desks: jax.Array
+    circles: jax.Array  # f32[office_circles, 3]
+    n_circles: jax.Array
+    requested: jax.Array
+    dropped: jax.Array
+
+
+def _furniture(rng: Uniforms, spec: RoomSpec, rooms, net, density) -> Furniture:
+    """Step 5: desks and cylinders in every active room (`rooms`: lo, hi [R, 2], active [R]), each
+    kept from its room's part of the network (`net`: la, lb [R, L, 2], lon [R, L])."""
+    (lo, hi, active), (la, lb, lon), c, R = rooms, net, spec.clearance, rooms[0].shape[0]
+
+    def clear(dist_sq, r2):  # candidates [R, P, ...] keep sqrt(r2) from every segment of their room's network
+        d = dist_sq(la[:, None], lb[:, None])  # [R, P, L]: one broadcast pass, small to compile
+        return jnp.all(~lon[:, None] | (d >= r2[..., None]), -1)
+
+    # A pool of (slots + tries) candidates per room and kind: the room's n pieces are the first n
+    # that keep c (one pool per room, not `tries` per piece: the room's network is the same for all).
+    (_, n_box, n_circ), T = office_slots(spec), spec.tries
+    D, C = spec.office_desks_max, spec.office_cylinders_max
+    room_lo, room_ext = lo[:, None], (hi - lo)[:, None]
+    n_d = rng.randint(spec.office_desks_min, spec.office_desks_max, (R,))
+    dep = rng.uniform((R, D + T), spec.office_desk_depth_min, spec.office_desk_depth_max)
+    length = rng.uniform((R, D + T), spec.office_desk_length_min, spec.office_desk_length_max)
+    sides = jnp.where((rng.u((R, D + T)) < 0.5)[..., None], jnp.stack([dep, length], -1), jnp.stack([length, dep], -1))
+    cen = room_lo + sides / 2 + rng.u((R, D + T, 2)) * jnp.maximum(room_ext - sides, 0.0)
+    ok = clear(lambda a, b: seg_aabb_sq(a, b, cen[..., None, :], sides[..., None, :] / 2), jnp.full((R, D + T), c * c))
+    pick, desk_fit = first_fits(ok, n_d, D)
+    desk_fit = (desk_fit & active[:, None]).reshape(-1)
+    desk_on = keep_random(desk_fit, rng.u((R * D,)), density, n_box)
+    rows = jnp.concatenate([take_along(cen, pick), take_along(sides, pick)], -1).reshape(-1, 4)
+    desks, n_desks = compact(rows, desk_on, n_box)
+    n_c = rng.randint(spec.office_cylinders_min, spec.office_cylinders_max, (R,))
+    rad = rng.uniform((R, C + T), spec.office_radius_min, spec.office_radius_max)
+    cen = room_lo + rad[..., None] + rng.u((R, C + T, 2)) * jnp.maximum(room_ext - 2 * rad[..., None], 0.0)
+    pick, circ_fit = first_fits(clear(lambda a, b: pt_seg_sq(cen[..., None, :], a, b), (c + rad) ** 2), n_c, C)
+    circ_fit = (circ_fit & active[:, None]).reshape(-1)
+    circ_on = keep_random(circ_fit, rng.u((R * C,)), density, n_circ)
+    rows = jnp.concatenate([take_along(cen, pick), take_along(rad[..., None], pick)], -1).reshape(-1, 3)
+    circles, n_circles = compact(rows, circ_on, n_circ)
+    requested = thin_count(jnp.sum(active * n_d), density) + thin_count(jnp.sum(active * n_c), density)
+    fitted = thin_count(jnp.sum(desk_fit), density) + thin_count(jnp.sum(circ_fit), density)
+    dropped = (fitted - jnp.sum(desk_on) - jnp.sum(circ_on)).astype(jnp.int32)
+    return Furniture(desks, n_desks, circles, n_circles, requested, dropped)
+
+
+def _grid(rng: Uniforms, spec: RoomSpec, Lx, Ly):
+    """Step 1 in the frame: the nx x ny rooms used of the NX x NY grid (room r = iy * NX + ix;
+    `active`: r is used), their corners lo, hi [R, 2], and their hubs (a random point of each core)."""
+    c, (NX, NY) = spec.clearance, office_grid(spec)
+    fit_x = jnp.clip(jnp.floor(Lx / spec.office_room_min), 1, NX)
+    fit_y = jnp.clip(jnp.floor(Ly / spec.office_room_min), 1, NY)
+    nx = jnp.clip(rng.randint(spec.office_cols_min, spec.office_cols_max), 1, fit_x).astype(jnp.int32)
+    ny = jnp.clip(rng.randint(spec.office_rows_min, spec.office_rows_max), 1, fit_y).astype(jnp.int32)
+    X = grid_lines(rng.u((NX + 1,)), nx, NX, Lx, spec.office_jitter)
+    Y = grid_lines(rng.u((NY + 1,)), ny, NY, Ly, spec.office_jitter)
+    ix, iy = (a.reshape(-1) for a in np.meshgrid(np.arange(NX), np.arange(NY)))
+    active = (ix < nx) & (iy < ny)
+    lo, hi = jnp.stack([X[ix], Y[iy]], -1), jnp.stack([X[ix + 1], Y[iy + 1]], -1)
+    hubs = lo + c + rng.u((NX * NY, 2)) * jnp.maximum(hi - lo - 2 * c, 0.0)
+    return nx, ny, ix, iy, active, lo, hi, hubs
+
+
+def _placed(f: Furniture, spec: RoomSpec, flip):
+    """The furniture in room coordinates: (desks on [office_boxes], their rows (centre, sides), the
+    desks' edge segments [office_boxes, 4, 4], the cylinder rows)."""
+    _, n_box, _ = office_slots(spec)
+    box_on = jnp.arange(n_box) < f.n_desks
+    rows = jnp.concatenate([swap_xy(f.desks[:, :2], flip), swap_xy(f.desks[:, 2:], flip)], -1)
+    edges = jnp.where(box_on[:, None, None], box_edges(rows[:, :2], rows[:, 2:]), 0.0)
+    return (
+        box_on,
+        jnp.where(box_on[:, None], rows, 0.0),
+        edges,
+        jnp.concatenate([swap_xy(f.circles[:, :2], flip), f.circles[:, 2:]], -1),
+    )
+
+
 def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     """One office floor (World, info); see the module docstring."""
     c = spec.clearance
@@ -152,16 +249,7 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     Lx, Ly = jnp.where(flip, H, W), jnp.where(flip, W, H)
     NX, NY = office_grid(spec)
     R = NX * NY
-    fit_x = jnp.clip(jnp.floor(Lx / spec.office_room_min), 1, NX)
-    fit_y = jnp.clip(jnp.floor(Ly / spec.office_room_min), 1, NY)
-    nx = jnp.clip(rng.randint(spec.office_cols_min, spec.office_cols_max), 1, fit_x).astype(jnp.int32)
-    ny = jnp.clip(rng.randint(spec.office_rows_min, spec.office_rows_max), 1, fit_y).astype(jnp.int32)
-    X = grid_lines(rng.u((NX + 1,)), nx, NX, Lx, spec.office_jitter)
-    Y = grid_lines(rng.u((NY + 1,)), ny, NY, Ly, spec.office_jitter)
-    ix, iy = (a.reshape(-1) for a in np.meshgrid(np.arange(NX), np.arange(NY)))  # room r = iy * NX + ix
-    active = (ix < nx) & (iy < ny)
-    lo, hi = jnp.stack([X[ix], Y[iy]], -1), jnp.stack([X[ix + 1], Y[iy + 1]], -1)  # [R, 2]
-    hubs = lo + c + rng.u((R, 2)) * jnp.maximum(hi - lo - 2 * c, 0.0)
+    nx, ny, ix, iy, active, lo, hi, hubs = _grid(rng, spec, Lx, Ly)
 
     # 2. Doors: the east wall (to room r + 1) and the north wall (to room r + NX) of every room.
     open_e, open_n = backtracker(rng.u(()), rng.u((max(2 * (R - 1), 0), 4)), nx, ny, NX, NY)
@@ -202,80 +290,33 @@ def build(rng: Uniforms, spec: RoomSpec, density=1.0):
     lb = jnp.concatenate([near, far, jnp.broadcast_to(cb, (R, *cb.shape))], 1)
     lon = jnp.concatenate([side_on, side_on, (ends_room[None] == jnp.arange(R)[:, None]) & con[None]], 1)
 
-    def clear(dist_sq, r2):  # candidates [R, P, ...] keep sqrt(r2) from every segment of their room's network
-        d = dist_sq(la[:, None], lb[:, None])  # [R, P, L]: one broadcast pass, small to compile
-        return jnp.all(~lon[:, None] | (d >= r2[..., None]), -1)
-
-    # A pool of (slots + tries) candidates per room and kind: the room's n pieces are the first n
-    # that keep c (one pool per room, not `tries` per piece: the room's network is the same for all).
-    (_, n_box, n_circ), T = office_slots(spec), spec.tries
-    D, C = spec.office_desks_max, spec.office_cylinders_max
-    room_lo, room_ext = lo[:, None], (hi - lo)[:, None]
-    n_d = rng.randint(spec.office_desks_min, spec.office_desks_max, (R,))
-    dep = rng.uniform((R, D + T), spec.office_desk_depth_min, spec.office_desk_depth_max)
-    length = rng.uniform((R, D + T), spec.office_desk_length_min, spec.office_desk_length_max)
-    sides = jnp.where((rng.u((R, D + T)) < 0.5)[..., None], jnp.stack([dep, length], -1), jnp.stack([length, dep], -1))
-    cen = room_lo + sides / 2 + rng.u((R, D + T, 2)) * jnp.maximum(room_ext - sides, 0.0)
-    ok = clear(lambda a, b: seg_aabb_sq(a, b, cen[..., None, :], sides[..., None, :] / 2), jnp.full((R, D + T), c * c))
-    pick, desk_fit = first_fits(ok, n_d, D)
-    desk_fit = (desk_fit & active[:, None]).reshape(-1)
-    desk_on = keep_random(desk_fit, rng.u((R * D,)), density, n_box)
-    rows = jnp.concatenate([take_along(cen, pick), take_along(sides, pick)], -1).reshape(-1, 4)
-    desks, n_desks = compact(rows, desk_on, n_box)
-    n_c = rng.randint(spec.office_cylinders_min, spec.office_cylinders_max, (R,))
-    rad = rng.uniform((R, C + T), spec.office_radius_min, spec.office_radius_max)
-    cen = room_lo + rad[..., None] + rng.u((R, C + T, 2)) * jnp.maximum(room_ext - 2 * rad[..., None], 0.0)
-    pick, circ_fit = first_fits(clear(lambda a, b: pt_seg_sq(cen[..., None, :], a, b), (c + rad) ** 2), n_c, C)
-    circ_fit = (circ_fit & active[:, None]).reshape(-1)
-    circ_on = keep_random(circ_fit, rng.u((R * C,)), density, n_circ)
-    rows = jnp.concatenate([take_along(cen, pick), take_along(rad[..., None], pick)], -1).reshape(-1, 3)
-    circles, n_circles = compact(rows, circ_on, n_circ)
+    f = _furniture(rng, spec, (lo, hi, active), (la, lb, lon), density)
+    _, n_box, n_circ = office_slots(spec)
 
     # 6. Walls thinned like the furniture; the World in room coordinates.
     piece_on = keep_random(piece_on, rng.u(piece_on.shape), density, piece_on.shape[0])
-    box_on = jnp.arange(n_box) < n_desks
-    edges = jnp.where(box_on[:, None, None], box_edges(swap_xy(desks[:, :2], flip), swap_xy(desks[:, 2:], flip)), 0.0)
+    box_on, box_rows, edges, circles = _placed(f, spec, flip)
     segs = jnp.concatenate([jnp.where(piece_on[:, None], swap_xy(pieces, flip), 0.0), edges.reshape(-1, 4)])
-    circles = jnp.concatenate([swap_xy(circles[:, :2], flip), circles[:, 2:]], -1)
-    ep = ep._replace(
-        starts=swap_xy(ep.starts, flip),
-        start_anchor=swap_xy(ep.start_anchor, flip),
-        goals=swap_xy(ep.goals, flip),
-        goal_anchor=swap_xy(ep.goal_anchor, flip),
-    )
+    ep = flip_endpoints(ep, flip)
     world = assemble(spec, W, H, segs, circles, ep)
     res_a, res_b = swap_xy(jnp.concatenate([net_a, ca]), flip), swap_xy(jnp.concatenate([net_b, cb]), flip)
     n_walls = jnp.sum(piece_on).astype(jnp.int32)
-    s_on = ep.start_on
-    info = (
-        common_info(ep, res_a, res_b, jnp.concatenate([net_on, con]))
-        | {
-            "rooms": (nx * ny).astype(jnp.int32),
-            "room_boxes": jnp.where(
-                active[:, None], jnp.concatenate([swap_xy(lo, flip), swap_xy(hi, flip)], -1), 0.0
-            ),  # x0, y0, x1, y1
-            "doors": jnp.sum(doors).astype(jnp.int32),
-            "door_width": jnp.concatenate([e_w, n_w]),  # 0 where no door
-            "start_room": s_room,
-            "goal_room": g_room,
-            "rooms_apart": jnp.all(~s_on[:, None] | ~ep.goal_on[None] | (s_room[:, None] != g_room[None])),
-            "wall_pieces": n_walls,
-            "desks": jnp.minimum(n_desks, n_box).astype(jnp.int32),
-            "cylinders": jnp.minimum(n_circles, n_circ).astype(jnp.int32),
-            "obstacles": (n_walls + jnp.minimum(n_desks, n_box) + jnp.minimum(n_circles, n_circ)).astype(jnp.int32),
-            "box_rows": jnp.where(
-                box_on[:, None], jnp.concatenate([swap_xy(desks[:, :2], flip), swap_xy(desks[:, 2:], flip)], -1), 0.0
-            ),
-            "box_on": box_on,
-            # furniture that fitted but found no slot (office_boxes, office_circles), and what was asked for
-            "furniture_dropped": (
-                thin_count(jnp.sum(desk_fit), density)
-                + thin_count(jnp.sum(circ_fit), density)
-                - jnp.sum(desk_on)
-                - jnp.sum(circ_on)
-            ).astype(jnp.int32),
-            "furniture_requested": thin_count(jnp.sum(active * n_d), density)
-            + thin_count(jnp.sum(active * n_c), density),
-        }
-    )
+    info = common_info(ep, res_a, res_b, jnp.concatenate([net_on, con])) | {
+        "rooms": (nx * ny).astype(jnp.int32),
+        "room_boxes": jnp.where(active[:, None], swap_xy(jnp.concatenate([lo, hi], -1), flip), 0.0),  # x0, y0, x1, y1
+        "doors": jnp.sum(doors).astype(jnp.int32),
+        "door_width": jnp.concatenate([e_w, n_w]),  # 0 where no door
+        "start_room": s_room,
+        "goal_room": g_room,
+        "rooms_apart": jnp.all(~ep.start_on[:, None] | ~ep.goal_on[None] | (s_room[:, None] != g_room[None])),
+        "wall_pieces": n_walls,
+        "desks": jnp.minimum(f.n_desks, n_box).astype(jnp.int32),
+        "cylinders": jnp.minimum(f.n_circles, n_circ).astype(jnp.int32),
+        "obstacles": (n_walls + jnp.minimum(f.n_desks, n_box) + jnp.minimum(f.n_circles, n_circ)).astype(jnp.int32),
+        "box_rows": box_rows,
+        "box_on": box_on,
+        # furniture that fitted but found no slot (office_boxes, office_circles), and what was asked for
+        "furniture_dropped": f.dropped,
+        "furniture_requested": f.requested,
+    }
     return world, info
