@@ -11,6 +11,11 @@ time-out, a deadlock.
 Several folders pool their points' seeds (a sweep's seeds trained in two sweeps, e.g. shared_td3_1e7
 and shared_td3_1e7_seeds): one row per (method, trained, budget, K) over every seed of every folder;
 a seed twice for one row is refused (the same training pooled twice).
+
+Kept evaluations (`fedjax-nav evaluate --robots-per-room`, `scripts/suite_with.py --robots-per-room`
+write shared_episodes.csv) side by side, per K and family, those of one LABEL pooled:
+
+    python scripts/shared_report.py --kept "plan, 4 seeds"=runs/x/A-dense+runs/x/B-dense --csv results/y.csv
 """
 
 from __future__ import annotations
@@ -52,6 +57,34 @@ def trained_points(folders: list[Path]) -> list[Path]:
     return points
 
 
+def outcomes(part: pd.DataFrame) -> dict:
+    """Robot-episodes of one row: success with its 95% bootstrap interval over training seeds, the
+    worst seed, the worst 10% of rooms, and the shares of each outcome."""
+    per_seed = part.groupby("seed")["success"].mean().to_numpy()
+    per_room = part.groupby("room")["success"].mean().to_numpy()
+    lo, hi = bootstrap_ci(per_seed)
+    return {
+        "seeds": len(per_seed),
+        "success": float(part["success"].mean()),
+        "ci_seeds_low": lo,
+        "ci_seeds_high": hi,
+        "worst_seed": float(per_seed.min()),
+        "worst10_rooms": float(worst_mean(per_room)),
+        **{o: float(part[o].mean()) for o in ("collision", "robot_collision", "timeout", "deadlock")},
+    }
+
+
+def pool(named: list[tuple[str, pd.DataFrame]], what: str) -> pd.DataFrame:
+    """The episodes of several evaluations of other seeds as one frame (a seed twice: refused)."""
+    seen: set = set()
+    for _, ep in named:
+        if seen & set(ep["seed"]):
+            others = ", ".join(n for n, _ in named)
+            raise SystemExit(f"error: {what}: a seed is in more than one of {others} (pooled twice?)")
+        seen |= set(ep["seed"])
+    return pd.concat([ep for _, ep in named], ignore_index=True)
+
+
 def rows(folders, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:
     """One row per (method, trained, agent-steps, K), pooled over the points' seeds."""
     groups: dict[tuple, list] = {}
@@ -65,29 +98,16 @@ def rows(folders, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFr
         )
     table = []
     for (method, trained, steps), members in groups.items():
-        seeds = [set(ep["seed"]) for _, ep, _ in members]
-        if len(set().union(*seeds)) < sum(map(len, seeds)):
-            names = ", ".join(p.name for p, _, _ in members)
-            raise SystemExit(f"error: {method}, {trained}: a seed is in more than one of the points {names}")
-        ep = pd.concat([e for _, e, _ in members], ignore_index=True)
+        ep = pool([(p.name, e) for p, e, _ in members], f"{method}, {trained}")
         last = pd.concat([m for _, _, m in members], ignore_index=True)  # training's last 5 episodes
         ends = int(last["goals"].sum() + last["collisions"].sum())
         for k, part in ep.groupby("robots_per_room"):
-            per_seed = part.groupby("seed")["success"].mean().to_numpy()
-            per_room = part.groupby("room")["success"].mean().to_numpy()
-            lo, hi = bootstrap_ci(per_seed)
             table.append(
                 {
                     "method": method,
                     "trained": trained,
                     "robots_per_room": int(k),
-                    "seeds": len(per_seed),
-                    "success": float(part["success"].mean()),
-                    "ci_seeds_low": lo,
-                    "ci_seeds_high": hi,
-                    "worst_seed": float(per_seed.min()),
-                    "worst10_rooms": float(worst_mean(per_room)),
-                    **{o: float(part[o].mean()) for o in ("collision", "robot_collision", "timeout", "deadlock")},
+                    **outcomes(part),
                     # training's last 5 episodes: the shares of attempts (ended by a goal or a
                     # collision) ended at the goal, and by touching another robot
                     "train_goal_share": float(last["goals"].sum() / max(ends, 1)),
@@ -101,15 +121,36 @@ def rows(folders, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFr
     return pd.DataFrame(table).sort_values(["robots_per_room", "method", "trained"]).reset_index(drop=True)
 
 
+def kept_rows(pairs: list[str]) -> pd.DataFrame:
+    """LABEL=FOLDER[+FOLDER...]: kept shared-room evaluations, one row per label, K and family (and
+    'all'), the folders of one label pooled (their runs trained other seeds)."""
+    table = []
+    for pair in pairs:
+        label, _, folders = pair.partition("=")
+        if not folders:
+            raise SystemExit(f"error: {pair!r} is not LABEL=FOLDER[+FOLDER...]")
+        named = []
+        for f in folders.split("+"):
+            if not (Path(f) / rundir.SHARED_EPISODES).is_file():
+                raise SystemExit(f"error: {f}: no kept evaluation with K robots per room ({rundir.SHARED_EPISODES})")
+            named.append((f, pd.read_csv(Path(f) / rundir.SHARED_EPISODES)))
+        ep = pool(named, label)
+        for k, at_k in ep.groupby("robots_per_room"):
+            for family, part in [*at_k.groupby("family", sort=False), ("all", at_k)]:
+                table.append({"label": label, "robots_per_room": int(k), "family": family, **outcomes(part)})
+    return pd.DataFrame(table)
+
+
 def markdown(df: pd.DataFrame) -> str:
+    first = ["label", "family"] if "label" in df else ["method", "trained"]
     lines = [
-        "| K robots per room | method | trained | success [95% CI over seeds] | worst seed | worst 10% rooms | "
+        f"| K robots per room | {first[0]} | {first[1]} | success [95% CI over seeds] | worst seed | worst 10% rooms | "
         "obstacle | robot-robot | time-out | deadlock |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in df.to_dict(orient="records"):
         lines.append(
-            f"| {r['robots_per_room']} | {r['method']} | {r['trained']} | {r['success']:.3f} "
+            f"| {r['robots_per_room']} | {r[first[0]]} | {r[first[1]]} | {r['success']:.3f} "
             f"[{r['ci_seeds_low']:.3f}, {r['ci_seeds_high']:.3f}] | {r['worst_seed']:.3f} | {r['worst10_rooms']:.3f} | "
             f"{r['collision']:.3f} | {r['robot_collision']:.3f} | {r['timeout']:.3f} | {r['deadlock']:.3f} |"
         )
@@ -118,14 +159,17 @@ def markdown(df: pd.DataFrame) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("folders", type=Path, nargs="+", help="sweep folders (several: their seeds pooled)")
+    ap.add_argument("folders", type=Path, nargs="*", help="sweep folders (several: their seeds pooled)")
+    ap.add_argument("--kept", action="append", default=[], metavar="LABEL=FOLDER[+FOLDER]", help="kept evaluations")
     ap.add_argument("--suite", default="mixture-50")
     ap.add_argument("--robots-per-room", default="1,2,4,8")
     ap.add_argument("--max-steps", type=int, default=None)
     ap.add_argument("--csv", default=None, help="write the table here too (e.g. results/shared_1e7.csv)")
     a = ap.parse_args(argv)
     ks = sorted({int(k) for k in a.robots_per_room.split(",")})
-    df = rows(a.folders, a.suite, ks, a.max_steps)
+    if bool(a.folders) == bool(a.kept):
+        ap.error("give sweep folders or --kept evaluations (not both)")
+    df = rows(a.folders, a.suite, ks, a.max_steps) if a.folders else kept_rows(a.kept)
     if a.csv:
         rundir.atomic_write(Path(a.csv), lambda p: df.to_csv(p, index=False))
     print(markdown(df))

@@ -64,3 +64,31 @@ def test_two_folders_pool_their_seeds_and_a_seed_twice_is_refused(tmp_path):
     point(tmp_path / "c", "p0again", seed=0, success=[1.0, 0.5])
     with pytest.raises(SystemExit, match="seed is in more than one"):
         shared_report.rows([tmp_path / "a", tmp_path / "c"], SUITE, KS, None)
+
+
+def test_kept_evaluations_are_tabulated_per_k_and_family_their_seeds_pooled(tmp_path):
+    folders = []
+    for name, seed, won in (("a", 0, [1, 1, 0, 0]), ("b", 1, [1, 0, 0, 0])):
+        ep = pd.DataFrame(
+            {
+                "robots_per_room": 2,
+                "room": [0, 0, 1, 1],
+                "family": ["forest", "forest", "maze", "maze"],
+                "seed": seed,
+                "robot": [0, 1, 0, 1],
+                "success": won,
+            }
+        ).assign(collision=0, robot_collision=lambda d: 1 - d.success, timeout=0, deadlock=0)
+        (tmp_path / name).mkdir()
+        ep.to_csv(tmp_path / name / rundir.SHARED_EPISODES, index=False)
+        folders.append(str(tmp_path / name))
+    df = shared_report.kept_rows([f"plan={'+'.join(folders)}"]).set_index("family")
+    assert list(df.index) == ["forest", "maze", "all"] and (df.seeds == 2).all()
+    assert df.loc["forest", "success"] == 0.75 and df.loc["maze", "success"] == 0.0
+    assert df.loc["all", "success"] == 0.375 and df.loc["all", "worst_seed"] == 0.25
+    assert df.loc["all", "robot_collision"] == 0.625
+    assert "| 2 | plan | all | 0.375" in shared_report.markdown(df.reset_index())
+    with pytest.raises(SystemExit, match="pooled twice"):
+        shared_report.kept_rows([f"twice={folders[0]}+{folders[0]}"])
+    with pytest.raises(SystemExit, match="no kept evaluation"):
+        shared_report.kept_rows([f"none={tmp_path}"])
