@@ -450,10 +450,10 @@ def test_cli_train_end_to_end_on_the_paper_config(tmp_path, capsys):
 def test_a_new_episode_metric_is_one_line_in_the_table(monkeypatch):
     """The step metrics are summed over the episode in the step scan; EPISODE_METRICS turns the
     sums into episode values. A metric added there (and nowhere else) comes out of the chunk."""
-    from fedjax_nav.training import trainer as trainer_module
+    from fedjax_nav.training.step_metrics import EPISODE_METRICS  # the table's one declaration
 
-    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "goal_rate", lambda m, T: m.goals / T)
-    monkeypatch.setitem(trainer_module.EPISODE_METRICS, "steps", lambda m, T: jnp.int32(T))
+    monkeypatch.setitem(EPISODE_METRICS, "goal_rate", lambda m, T: m.goals / T)
+    monkeypatch.setitem(EPISODE_METRICS, "steps", lambda m, T: jnp.int32(T))
     cfg = load_config(THESIS / "iddpg.yaml", TINY)
     tr, hp = Trainer(cfg), hparams_from_config(cfg)
     states = tr.init_seeds(jnp.arange(1), hp)
