@@ -290,7 +290,7 @@ def test_brax_ppo_and_sac_train_the_registered_env_as_they_are():
 def nav():
     import jax
 
-    from fedjax_nav.env import nav
+    from fedjax_nav import env as nav  # the package: make, NavEnv, EnvParams
 
     env, params = nav.make("Nav-v0", world="train-2", episode_length=16, v_max=0.5)
     return jax, nav, env, params

@@ -17,9 +17,7 @@ Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, cli
 from __future__ import annotations
 
 import functools
-import inspect
-from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -385,35 +383,11 @@ def make_params(world: World, **overrides) -> EnvParams:
     return base.replace(**fields)
 
 
-# ----------------------------------------------------------------------------- gymnax's make
+# ----------------------------------------------------------------------------- the default world
 
-DEFAULT_WORLD = "train-0"  # the world of `NavEnv.default_params` and of `make` without `world=`
-ENV_IDS = ("Nav-v0", "fedjax_nav/Nav-v0")  # the names `make` knows (the second is the gymnasium id)
-_NAVENV_ARGS = tuple(inspect.signature(NavEnv.__init__).parameters)[1:]
+DEFAULT_WORLD = "train-0"  # the world of `NavEnv.default_params` and of `env.make` without `world=`
 
 
 @functools.lru_cache(maxsize=1)
 def _default_world() -> World:
     return _worlds.load(DEFAULT_WORLD)
-
-
-def make(
-    env_id: str = "Nav-v0", *, world: str | Path | Sequence[str | Path] | World = DEFAULT_WORLD, **kwargs
-) -> tuple[NavEnv, EnvParams]:
-    """`env, params = make("Nav-v0", ...)`, as `gymnax.make`.
-
-    world: a shipped name or a world file, a list of them (stacked: params with a leading
-    playground axis, to `vmap` over), or a `World`. The other keyword arguments go to `NavEnv`
-    when they are its arguments (num_beams, max_range, episode_length, mode, collision_test,
-    noise, robot, ...) and to `make_params` otherwise (EnvParams fields: goal_index, v_max, ...).
-    """
-    if env_id not in ENV_IDS:
-        raise ValueError(f"unknown environment {env_id!r}; known: {', '.join(ENV_IDS)}")
-    env = NavEnv(**{k: kwargs.pop(k) for k in list(kwargs) if k in _NAVENV_ARGS})
-    if isinstance(world, World):
-        w = world
-    elif isinstance(world, (str, Path)):
-        w = _worlds.load(world)
-    else:
-        w = _worlds.load_many(list(world))
-    return env, make_params(w, **kwargs)
