@@ -30,7 +30,7 @@ import pandas as pd
 
 from fedjax_nav import rundir
 from fedjax_nav.evaluation.shared_rooms import evaluate_shared, shared_dir, write_shared
-from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
+from fedjax_nav.evaluation.suite_stats import bootstrap_ci, pool_seeds, worst_mean
 
 METHODS = {"flddpg": "federated", "iddpg": "independent", "snddpg": "central"}
 
@@ -76,13 +76,11 @@ def outcomes(part: pd.DataFrame) -> dict:
 
 def pool(named: list[tuple[str, pd.DataFrame]], what: str) -> pd.DataFrame:
     """The episodes of several evaluations of other seeds as one frame (a seed twice: refused)."""
-    seen: set = set()
-    for _, ep in named:
-        if seen & set(ep["seed"]):
-            others = ", ".join(n for n, _ in named)
-            raise SystemExit(f"error: {what}: a seed is in more than one of {others} (pooled twice?)")
-        seen |= set(ep["seed"])
-    return pd.concat([ep for _, ep in named], ignore_index=True)
+    try:
+        return pool_seeds(named)
+    except ValueError:
+        others = ", ".join(n for n, _ in named)
+        raise SystemExit(f"error: {what}: a seed is in more than one of {others} (pooled twice?)") from None
 
 
 def rows(folders, suite: str, ks: list[int], max_steps: int | None) -> pd.DataFrame:

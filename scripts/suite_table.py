@@ -33,17 +33,15 @@ def pooled(folders: list[str]) -> pd.DataFrame:
     import json
 
     from fedjax_nav.evaluation.suite import suite_families
+    from fedjax_nav.evaluation.suite_stats import pool_seeds
 
     suites = {tuple(json.loads(_kept(f, "suite.json").read_text())["suites"]) for f in folders}
     if len(suites) > 1:
         raise SystemExit(f"error: {' + '.join(folders)}: evaluations of different suites cannot be pooled")
-    eps = [pd.read_csv(_kept(f, "suite_episodes.csv")) for f in folders]
-    seen: set = set()
-    for f, ep in zip(folders, eps):
-        if seen & set(ep["seed"]):
-            raise SystemExit(f"error: {f}: its seeds {sorted(seen & set(ep['seed']))} are pooled already")
-        seen |= set(ep["seed"])
-    ep = pd.concat(eps, ignore_index=True)
+    try:
+        ep = pool_seeds([(f, pd.read_csv(_kept(f, "suite_episodes.csv"))) for f in folders])
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
     return suite_families(ep, list(dict.fromkeys(ep["family"])))
 
 

@@ -93,3 +93,14 @@ def detour_split(ep: pd.DataFrame) -> dict:
     mean = lambda x: float(x.mean()) if len(x) else float("nan")  # noqa: E731
     sx = ep["success"].to_numpy()
     return {"detour_share": mean(detour), "success_direct": mean(sx[~detour]), "success_detour": mean(sx[detour])}
+
+
+def pool_seeds(named: list[tuple[str, pd.DataFrame]]) -> pd.DataFrame:
+    """The episodes of several evaluations whose runs trained other seeds of one config (e.g. seeds
+    0-1 and 2-3), as one frame; ValueError naming the first evaluation whose seeds are pooled already."""
+    seen: set = set()
+    for name, ep in named:
+        if seen & set(ep["seed"]):
+            raise ValueError(f"{name}: its seeds {sorted(seen & set(ep['seed']))} are pooled already")
+        seen |= set(ep["seed"])
+    return pd.concat([ep for _, ep in named], ignore_index=True)
