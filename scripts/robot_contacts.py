@@ -1,0 +1,217 @@
+"""How robots that share a room touch (docs/shared_rooms.md, "How the robots touch"): a run's
+agents evaluated with K robots per room (the protocol of `fedjax-nav evaluate --robots-per-room`,
+the same keys), every robot-robot collision taken apart from the trajectories: how the two robots
+were heading (head-on, crossing, the same way), where the other robot was (in front, beside,
+behind), how fast each drove over the last second, and for how many steps the other had been
+within 1 m before the contact. Writes `contacts.csv` (one row per robot-robot collision),
+`contacts.json` (the shares) and `contacts.png` (the last 6 s of the first contacts). With
+--collect, the table of several such folders (one row each) instead.
+
+    python scripts/robot_contacts.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 \
+        --set env.plan_cells=128 --suite mixture-50 --robots-per-room 4 --out runs/x/contacts
+    python scripts/robot_contacts.py --collect "alone"=runs/x/a "shared"=runs/x/b --csv results/robot_contacts.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+NEAR = 1.0  # m: "the other robot is near" (two discs of 0.25 m and a robot's length)
+SPEED_WINDOW = 10  # steps over which a robot's speed is measured before the contact
+HEADINGS = ((45.0, "same way"), (135.0, "crossing"), (180.0, "head-on"))  # |heading difference| <= deg
+BEARINGS = ((45.0, "in front"), (135.0, "beside"), (180.0, "behind"))  # |the other's bearing| <= deg
+STILL = 0.02  # m/s: a robot slower than this over the window stood still
+
+
+def _wrap_deg(a: np.ndarray) -> np.ndarray:
+    return np.abs((np.degrees(a) + 180.0) % 360.0 - 180.0)
+
+
+def _bin(value: float, bins) -> str:
+    return next(name for hi, name in bins if value <= hi + 1e-9)
+
+
+def contacts(poses: np.ndarray, steps: np.ndarray, robot_collision: np.ndarray, dt: float) -> pd.DataFrame:
+    """One row per robot whose episode ended in a robot-robot collision, for one room's fleet:
+    `poses` [T + 1, k, 3] (poses[t] after step t), `steps` [k] (a robot's last step), `robot_collision`
+    bool [k]. The partner is the nearest robot still in the room at that step."""
+    rows = []
+    k = poses.shape[1]
+    for i in np.flatnonzero(robot_collision):
+        s = int(steps[i])
+        live = [j for j in range(k) if j != i and steps[j] >= s]
+        if not live:  # cannot happen: a contact needs another robot in the room
+            continue
+        d = np.linalg.norm(poses[s, live, :2] - poses[s, i, :2], axis=-1)
+        j = live[int(np.argmin(d))]
+        pi, pj = poses[s, i], poses[s, j]
+        heading = float(_wrap_deg(pj[2] - pi[2]))
+        bearing = float(_wrap_deg(np.arctan2(pj[1] - pi[1], pj[0] - pi[0]) - pi[2]))
+        w = min(SPEED_WINDOW, s)
+        speed = np.linalg.norm(poses[s, :, :2] - poses[s - w, :, :2], axis=-1) / (max(w, 1) * dt)  # [k] m/s
+        gap = np.linalg.norm(poses[: s + 1, j, :2] - poses[: s + 1, i, :2], axis=-1)
+        far = np.flatnonzero(gap >= NEAR)
+        rows.append(
+            {
+                "robot": int(i),
+                "other": int(j),
+                "step": s,
+                "heading_diff_deg": heading,
+                "kind": _bin(heading, HEADINGS),
+                "bearing_deg": bearing,
+                "where": _bin(bearing, BEARINGS),
+                "speed": float(speed[i]),
+                "other_speed": float(speed[j]),
+                "near_steps": s - int(far[-1]) if far.size else s,
+                "distance": float(np.min(d)),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def shares(df: pd.DataFrame) -> dict:
+    """The shares of the contacts by kind, by where the other was, by who stood still."""
+    if df.empty:
+        return {"contacts": 0}
+    still = (df.speed < STILL) | (df.other_speed < STILL)
+    return {
+        "contacts": len(df),
+        "kind": df.kind.value_counts(normalize=True).round(3).to_dict(),
+        "where": df["where"].value_counts(normalize=True).round(3).to_dict(),
+        "one_stood_still": round(float(still.mean()), 3),
+        "near_steps_median": float(df.near_steps.median()),
+        "speed_median": round(float(df.speed.median()), 3),
+        "other_speed_median": round(float(df.other_speed.median()), 3),
+    }
+
+
+def figure(panels: list, out: Path, dt: float) -> Path:
+    """The last 6 s before each of the first contacts, the two robots' paths (the robot solid,
+    the other dashed) centred on the contact, each robot a disc of D_c with its heading."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
+
+    from fedjax_nav.evaluation.shared_rooms import ROBOT_DISC
+
+    fig = Figure(figsize=(3.0 * min(len(panels), 4), 3.0 * ((len(panels) + 3) // 4)), layout="constrained")
+    back = int(round(6.0 / dt))
+    for n, (row, poses) in enumerate(panels):
+        ax = fig.add_subplot((len(panels) + 3) // 4, min(len(panels), 4), n + 1)
+        s, c = row.step, poses[row.step, row.robot, :2]
+        for r, style in ((row.robot, "-"), (row.other, "--")):
+            xy = poses[max(0, s - back) : s + 1, r, :2] - c
+            (line,) = ax.plot(xy[:, 0], xy[:, 1], style, lw=1.5)
+            ax.add_patch(Circle(tuple(xy[-1]), ROBOT_DISC, alpha=0.3, color=line.get_color()))
+            ahead = xy[-1] + 0.35 * np.array([np.cos(poses[s, r, 2]), np.sin(poses[s, r, 2])])
+            ax.annotate("", ahead, xy[-1], arrowprops={"arrowstyle": "->", "color": line.get_color()})
+        ax.set_aspect("equal")
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_ylim(-1.6, 1.6)
+        ax.set_title(f"{row.kind}, other {row['where']}", fontsize=9)
+    path = out / "contacts.png"
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def table(folders: dict) -> pd.DataFrame:
+    """One row per LABEL -> folder written by this script: contacts per robot-episode and their shares."""
+    rows = []
+    for label, folder in folders.items():
+        s = json.loads((Path(folder) / "contacts.json").read_text())
+        kind, where = s.get("kind", {}), s.get("where", {})
+        rows.append(
+            {
+                "policy": label,
+                "robots_per_room": s["robots_per_room"],
+                "robot_episodes": s["robot_episodes"],
+                "robot_robot": round(s["contacts"] / s["robot_episodes"], 3),
+                **{f"other_{w.replace(' ', '_')}": where.get(w, 0.0) for _, w in BEARINGS},
+                **{k.replace(" ", "_").replace("-", "_"): kind.get(k, 0.0) for _, k in HEADINGS},
+                "one_stood_still": s.get("one_stood_still", 0.0),
+                "speed_median": s.get("speed_median", 0.0),
+                "near_steps_median": s.get("near_steps_median", 0.0),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def collect(pairs: list, csv: str | None) -> int:
+    folders = {}
+    for pair in pairs:
+        label, sep, folder = pair.partition("=")
+        if not sep or not (Path(folder) / "contacts.json").exists():
+            print(f"error: --collect {pair!r}: LABEL=FOLDER, a folder this script wrote", file=sys.stderr)
+            return 2
+        folders[label] = folder
+    df = table(folders)
+    print(df.to_string(index=False))
+    if csv:
+        df.to_csv(csv, index=False)
+        print("wrote", csv)
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", nargs="?", help="a run directory (its agents and config.yaml)")
+    ap.add_argument("--collect", nargs="+", metavar="LABEL=FOLDER", help="tabulate folders this script wrote")
+    ap.add_argument("--csv", help="with --collect: write the table here")
+    ap.add_argument("--set", action="append", default=[], help="traced overrides, as scripts/suite_with.py")
+    ap.add_argument("--suite", default="mixture-50")
+    ap.add_argument("--robots-per-room", type=int, default=4)
+    ap.add_argument("--out", help="a new folder")
+    a = ap.parse_args(argv)
+    if a.collect:
+        return collect(a.collect, a.csv)
+    if not (a.run and a.out):
+        ap.error("RUN and --out are needed (or --collect)")
+
+    import jax
+
+    from fedjax_nav.config import ConfigError, load_config
+    from fedjax_nav.evaluation import ACTION_NOISE, RANGE_NOISE
+    from fedjax_nav.evaluation.limits import EvalError
+    from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.shared_rooms import shared_protocol
+
+    out, k = Path(a.out), a.robots_per_room
+    if (out / "contacts.csv").exists():
+        print(f"error: {out / 'contacts.csv'} exists: choose another --out", file=sys.stderr)
+        return 2
+    try:
+        cfg = load_config(Path(a.run) / "config.yaml", a.set)
+        run = dataclasses.replace(load_run(a.run), cfg=cfg)
+        pr = shared_protocol(run, a.suite, None, 1, [k], RANGE_NOISE, ACTION_NOISE, None)
+    except (ConfigError, EvalError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    res = jax.device_get(pr.program(k, trajectories=True)(run.actor_params, pr.rooms, pr.keys(0, k)))
+    frames, panels = [], []
+    R, A = res["steps"].shape[:2]
+    for r in range(R):
+        for g in range(A):
+            poses = res["poses"][r, g]
+            df = contacts(poses, res["steps"][r, g], res["robot_collision"][r, g], float(cfg.env.dt))
+            frames.append(df.assign(room=r, family=pr.families[r], agent=g))
+            panels += [(row, poses) for _, row in df.iterrows() if row.robot < row.other][: 8 - len(panels)]
+    df = pd.concat(frames, ignore_index=True)
+    out.mkdir(parents=True, exist_ok=True)
+    df.to_csv(out / "contacts.csv", index=False)
+    summary = {"run": str(a.run), "suite": a.suite, "robots_per_room": k, "robot_episodes": int(R * A * k)}
+    summary |= shares(df)
+    (out / "contacts.json").write_text(json.dumps(summary, indent=1))
+    print(json.dumps(summary, indent=1))
+    if panels:
+        print("wrote", figure(panels, out, float(cfg.env.dt)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,82 @@
+"""scripts/robot_contacts.py (docs/shared_rooms.md, "How the robots touch"): the geometry of a
+robot-robot contact read from hand-made trajectories whose answer is known (nothing rolled out)."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("robot_contacts", ROOT / "scripts" / "robot_contacts.py")
+robot_contacts = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(robot_contacts)
+
+DT, V = 0.1, 0.25  # s per step, m/s
+
+
+def straight(start, heading: float, speed: float, steps: int) -> np.ndarray:
+    """Poses [steps + 1, 3] driving straight at `speed` from `start`."""
+    t = np.arange(steps + 1)[:, None] * DT * speed
+    xy = np.asarray(start, float) + t * np.array([np.cos(heading), np.sin(heading)])
+    return np.concatenate([xy, np.full((steps + 1, 1), heading)], axis=1)
+
+
+def test_a_head_on_meeting_is_head_on_in_front_and_near_for_the_steps_it_took():
+    # 3 m apart, closing at 0.5 m/s: contact (centres < 0.5 m) after 5.0 s; within 1 m after 4.0 s
+    a, b = straight((0.0, 0.0), 0.0, V, 60), straight((3.0, 0.0), np.pi, V, 60)
+    poses = np.stack([a, b], axis=1)
+    gap = np.linalg.norm(a[:, :2] - b[:, :2], axis=-1)
+    s = int(np.argmax(gap < 0.5))
+    df = robot_contacts.contacts(poses, np.array([s, s]), np.array([True, True]), DT)
+    assert len(df) == 2 and set(df.other) == {0, 1}
+    assert (df.kind == "head-on").all() and (df["where"] == "in front").all()
+    assert df.speed.to_numpy() == pytest.approx(V) and df.other_speed.to_numpy() == pytest.approx(V)
+    assert (df.near_steps == s - int(np.flatnonzero(gap[: s + 1] >= 1.0)[-1])).all()
+    assert df.distance.to_numpy() == pytest.approx(gap[s])
+
+
+def test_driving_into_a_robot_that_stands_still_is_the_same_way_from_both_sides_of_the_contact():
+    mover = straight((0.0, 0.0), 0.0, V, 40)
+    still = straight((2.0, 0.0), 0.0, 0.0, 40)
+    poses = np.stack([mover, still], axis=1)
+    s = int(np.argmax(np.linalg.norm(mover[:, :2] - still[:, :2], axis=-1) < 0.5))
+    df = robot_contacts.contacts(poses, np.array([s, s]), np.array([True, True]), DT).set_index("robot")
+    assert (df.kind == "same way").all()
+    assert df.loc[0, "where"] == "in front" and df.loc[1, "where"] == "behind"
+    assert df.loc[0, "other_speed"] == pytest.approx(0.0) and df.loc[1, "speed"] == pytest.approx(0.0)
+    assert robot_contacts.shares(df.reset_index())["one_stood_still"] == 1.0
+
+
+def test_the_partner_is_the_nearest_robot_still_in_the_room():
+    # robot 2 sits beside the contact but left the room (its episode ended) before it: not the partner
+    a, b = straight((0.0, 0.0), np.pi / 2, V, 30), straight((0.0, 2.0), -np.pi / 2, V, 30)
+    c = straight((0.3, 1.0), 0.0, 0.0, 30)
+    poses = np.stack([a, b, c], axis=1)
+    s = int(np.argmax(np.linalg.norm(a[:, :2] - b[:, :2], axis=-1) < 0.5))
+    df = robot_contacts.contacts(poses, np.array([s, s, s - 5]), np.array([True, True, False]), DT)
+    assert sorted(zip(df.robot, df.other)) == [(0, 1), (1, 0)]
+    # a crossing: robot 1 drives across robot 0's way from its left
+    b = straight((-1.5, 1.5), 0.0, V, 30)
+    poses = np.stack([a, b], axis=1)
+    s = int(np.argmax(np.linalg.norm(a[:, :2] - b[:, :2], axis=-1) < 0.5))
+    df = robot_contacts.contacts(poses, np.array([s, s]), np.array([True, False]), DT)
+    assert len(df) == 1 and df.kind[0] == "crossing" and df.heading_diff_deg[0] == pytest.approx(90.0)
+
+
+def test_collect_tabulates_the_folders_and_refuses_one_the_script_did_not_write(tmp_path, capsys):
+    df = robot_contacts.contacts(
+        np.stack([straight((0.0, 0.0), 0.0, V, 60), straight((3.0, 0.0), np.pi, V, 60)], axis=1),
+        np.array([50, 50]),
+        np.array([True, True]),
+        DT,
+    )
+    summary = {"robots_per_room": 2, "robot_episodes": 8} | robot_contacts.shares(df)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "contacts.json").write_text(__import__("json").dumps(summary))
+    csv = tmp_path / "t.csv"
+    assert robot_contacts.main(["--collect", f"A={tmp_path / 'a'}", "--csv", str(csv)]) == 0
+    row = __import__("pandas").read_csv(csv).iloc[0]
+    assert row.policy == "A" and row.robot_robot == 0.25 and row.head_on == 1.0 and row.other_in_front == 1.0
+    assert robot_contacts.main(["--collect", f"B={tmp_path / 'none'}"]) == 2
+    assert "LABEL=FOLDER" in capsys.readouterr().err
