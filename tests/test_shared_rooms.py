@@ -81,6 +81,31 @@ def test_two_robots_closer_than_twice_the_radius_both_collide_as_a_brute_force_c
     assert seen > 20
 
 
+def test_the_near_reward_is_paid_when_another_disc_is_within_the_clearance_as_a_brute_force_check():
+    robots, clearance, near = 5, 0.3, -1.0
+    env, world = NavEnv(), worlds.load("eval")
+    base = jax.vmap(lambda _: make_params(world))(jnp.arange(robots))
+    paid = base.replace(
+        reward_robot_near=jnp.full(robots, near, jnp.float32), robot_clearance=jnp.full(robots, clearance, jnp.float32)
+    )
+    keys = jax.random.split(jax.random.key(3), robots)
+    _, states = jax.vmap(env.reset)(keys, base)
+    step = jax.jit(shared.fleet_step(env, np.ones(robots, bool), 1))
+    rng, seen = np.random.default_rng(4), 0
+    for _ in range(20):
+        xy = rng.uniform(-1.2, 1.2, (robots, 2)).astype(np.float32)
+        states = states.replace(pose=jnp.asarray(np.concatenate([xy, np.zeros((robots, 1), np.float32)], 1)))
+        stay = jnp.zeros((robots, 2))
+        off = step(keys, states, stay, base)[2]
+        on = step(keys, states, stay, paid)[2]
+        d = np.linalg.norm(xy.astype(np.float64)[:, None] - xy[None], axis=-1) + 1e9 * np.eye(robots)
+        ok = (np.abs(d - (2 * R + clearance)) > 1e-5).all(axis=1)
+        want = np.where((d < 2 * R + clearance).any(axis=1), near, 0.0)
+        np.testing.assert_allclose(np.asarray(on - off)[ok], want[ok], atol=1e-5)
+        seen += int((want[ok] != 0).sum())
+    assert seen > 10
+
+
 @pytest.fixture(scope="module")
 def mixture_rooms():
     spec = make_spec("mixture")

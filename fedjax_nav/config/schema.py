@@ -147,6 +147,17 @@ class EnvConfig:
         "goal, seeing the others in its lidar; a contact of two robots is a collision of both "
         "(static; false = every robot alone; docs/shared_rooms.md)",
     )
+    reward_robot_near: float = _f(
+        0.0,
+        lo=-1e6,
+        hi=1e6,
+        traced=True,
+        doc="shared rooms: reward on every step another robot's disc is nearer than env.robot_clearance "
+        "to the robot's own (0 = off; docs/shared_rooms.md, 'Keeping apart')",
+    )
+    robot_clearance: float = _f(
+        0.3, lo=0.0, hi=1e4, traced=True, doc="shared rooms: m between two robots' discs env.reward_robot_near pays"
+    )
     # A global plan on the known map (docs/planning.md). The default gives today's mapless runs.
     plan: bool = _f(
         False,

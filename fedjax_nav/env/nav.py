@@ -65,6 +65,10 @@ class EnvParams:
     lidar_offset: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m ahead of the centre
     plan_lookahead: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # m; NavEnv(plan=True) only
     plan_margin: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m; NavEnv(plan=True) only
+    # Shared rooms only (docs/shared_rooms.md, "Keeping apart"): a reward on every step another robot's
+    # disc is nearer than robot_clearance to the robot's own. 0 = off.
+    reward_robot_near: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # per step
+    robot_clearance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.3))  # m between two discs
 
 
 @struct.dataclass
@@ -294,10 +298,12 @@ class NavEnv:
         else:  # the thesis's test: the shortest beam at the new pose
             clearance = jnp.min(ranges)
         collision = clearance < self.radius(params)
-        info = {}
+        info, near = {}, None
         if others is not None:  # robot i's disc and robot j's touch: |p_i - p_j| < 2 radius, the same for both
-            info["robot_collision"] = nearest_distance(NO_SEGMENTS, pose[:2], others) < self.radius(params)
+            to_other = nearest_distance(NO_SEGMENTS, pose[:2], others)  # to the nearest other disc's edge
+            info["robot_collision"] = to_other < self.radius(params)
             collision = collision | info["robot_collision"]
+            near = to_other < self.radius(params) + params.robot_clearance
         terminated = goal | collision
         final_obs = self.observe(k_obs, moved, ranges, params)
         obs = final_obs
@@ -314,6 +320,8 @@ class NavEnv:
             + jnp.where(goal, params.reward_goal, 0.0)
             + jnp.where(collision, params.reward_collision, 0.0)
         )
+        if near is not None:  # +0.0 when off: the sum above is never -0.0, so a reward bitwise unchanged
+            reward = reward + jnp.where(near, params.reward_robot_near, 0.0)
         if self.mode == "eval":
             truncated = truncated & ~terminated
         info = {
