@@ -12,6 +12,7 @@ shared_episodes.csv).
     python scripts/suite_with.py RUN --follower --suite dense-heldout --out runs/x/follower-dense
     python scripts/suite_with.py configs/learners/ppo.yaml --follower --set env.plan=true --suite heldout --out runs/x/f
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --robots-per-room 1,2,4,8 --suite dense-heldout --out x/k
+    python scripts/suite_with.py RUN --set env.plan_margin=0.3 --max-steps 2048 --suite indoor-heldout --out x/t2048
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main(argv=None) -> int:
     ap.add_argument("--attempts", type=int, default=1)
     ap.add_argument("--out", required=True, help="the evaluation's folder (refused when it holds one)")
     ap.add_argument("--robots-per-room", default=None, help="K robots per room, e.g. 1,2,4,8 (default: one per room)")
+    ap.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
     a = ap.parse_args(argv)
 
     from fedjax_nav.config import ConfigError, load_config, traced_fields
@@ -68,9 +70,9 @@ def main(argv=None) -> int:
         cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
         run = follower_run(cfg, out) if a.follower else dataclasses.replace(load_run(src), cfg=cfg)
         if ks is not None:
-            res = evaluate_shared(run, a.suite, ks, attempts=a.attempts)
+            res = evaluate_shared(run, a.suite, ks, attempts=a.attempts, max_steps=a.max_steps)
         else:
-            res = evaluate_suite(run, a.suite, attempts=a.attempts)
+            res = evaluate_suite(run, a.suite, attempts=a.attempts, max_steps=a.max_steps)
     except (ConfigError, EvalError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

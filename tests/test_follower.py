@@ -84,7 +84,7 @@ def test_the_script_writes_the_suite_tables_and_keeps_them(walled, tmp_path, cap
 
 
 def test_a_runs_agents_under_a_traced_value_changed(tmp_path, capsys):
-    from test_suite_dir import ROOMS, constant_run
+    from test_suite_dir import ROOMS, STEPS, constant_run
 
     rooms = tmp_path / "rooms"
     rooms.mkdir()
@@ -95,6 +95,8 @@ def test_a_runs_agents_under_a_traced_value_changed(tmp_path, capsys):
     assert suite_with.main([*base, "--set", "env.v_max=1.0", "--out", str(tmp_path / "b")]) == 0
     ep = {k: pd.read_csv(tmp_path / k / "suite_episodes.csv") for k in "ab"}
     assert ep["a"]["timeout"].all() and ep["b"]["success"].all()  # 4x the speed: 6 m in time
+    assert suite_with.main([*base, "--max-steps", str(4 * STEPS), "--out", str(tmp_path / "t")]) == 0
+    assert pd.read_csv(tmp_path / "t" / "suite_episodes.csv")["success"].all()  # 4x the time: 6 m in time
     assert suite_with.main([*base, "--set", "env.num_beams=12", "--out", str(tmp_path / "c")]) == 2
     assert "env.num_beams: not a traced value" in capsys.readouterr().err
 
