@@ -221,8 +221,9 @@ def test_a_shared_fleet_is_placed_together_and_meets(tmp_path):
             ["env.shared_rooms=true", "env.rooms=procedural", "env.room_families=[forest,maze,cave,mixture,warehouse]"],
             "env.room_families",
         ),
+        (["env.reward_robot_near=-0.5"], "env.reward_robot_near"),  # robots alone: never paid
     ],
-    ids=["five-worlds", "one-goal", "learnability", "families"],
+    ids=["five-worlds", "one-goal", "learnability", "families", "near-alone"],
 )
 def test_bad_shared_room_settings_are_one_line_naming_the_field(sets, field, tmp_path, capfd):
     argv = ["train", "--config", "thesis/flddpg", "--episodes", "2", "--out", str(tmp_path / "run")]

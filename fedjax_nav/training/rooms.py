@@ -102,6 +102,11 @@ class TrainRooms:
         fixed = [worlds.load(w) for w in e.worlds]
         if self.shared:
             check_shared(e, fixed, n)
+        elif e.reward_robot_near != 0:  # a reward that could never be paid: loud, not silently ignored
+            raise WorldError(
+                "env.reward_robot_near is paid between robots of a shared room: "
+                "set env.shared_rooms: true, or leave it 0"
+            )
         if e.plan and e.rooms != "procedural" and e.placement == "fixed":
             check_plan(cfg, fixed)
         if not self.procedural:
