@@ -32,6 +32,18 @@ def requirements(pyproject) -> dict[str, list[Requirement]]:
     return {name: [Requirement(r) for r in reqs] for name, reqs in groups.items()}
 
 
+def test_every_preset_in_the_checkout_is_shipped_in_the_package(pyproject):
+    # a sweep's `base: ../learners/ppo.yaml` from a wheel that lacked learners/ failed; read the
+    # globs as setuptools does (relative to the package's folder)
+    shipped = {
+        p
+        for pattern in pyproject["tool"]["setuptools"]["package-data"]["fedjax_nav.configs"]
+        for p in (ROOT / "fedjax_nav" / "configs").glob(pattern)
+    }
+    presets = set((ROOT / "fedjax_nav" / "configs").rglob("*.yaml"))
+    assert presets and presets <= shipped, sorted(str(p) for p in presets - shipped)
+
+
 def test_version_prints_the_package_version(capsys):
     with pytest.raises(SystemExit) as e:
         cli.main(["--version"])

@@ -122,6 +122,7 @@ def test_the_wheel_ships_the_type_marker(installed):
 def test_configs_train_reproduce_and_evaluate_from_an_empty_directory(installed):
     r = run(installed, "configs")
     assert r.returncode == 0 and "thesis/flddpg" in r.stdout and "tau" in r.stdout, r.stderr[-2000:]
+    assert "learners/ppo" in r.stdout  # the learners' presets, which 20 sweeps take as their base
     r = run(installed, "train", "--config", "thesis/flddpg", "--out", "run", "--quiet", *TINY)
     assert r.returncode == 0, r.stderr[-3000:]
     assert (installed["work"] / "run" / "params.npz").exists()
