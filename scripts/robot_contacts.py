@@ -166,6 +166,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], help="traced overrides, as scripts/suite_with.py")
     ap.add_argument("--suite", default="mixture-50")
     ap.add_argument("--robots-per-room", type=int, default=4)
+    ap.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
     ap.add_argument("--out", help="a new folder")
     a = ap.parse_args(argv)
     if a.collect:
@@ -188,7 +189,7 @@ def main(argv=None) -> int:
     try:
         cfg = load_config(Path(a.run) / "config.yaml", a.set)
         run = dataclasses.replace(load_run(a.run), cfg=cfg)
-        pr = shared_protocol(run, a.suite, None, 1, [k], RANGE_NOISE, ACTION_NOISE, None)
+        pr = shared_protocol(run, a.suite, None, 1, [k], RANGE_NOISE, ACTION_NOISE, a.max_steps)
     except (ConfigError, EvalError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -1,5 +1,6 @@
 """scripts/robot_contacts.py (docs/shared_rooms.md, "How the robots touch"): the geometry of a
-robot-robot contact read from hand-made trajectories whose answer is known (nothing rolled out)."""
+robot-robot contact read from hand-made trajectories whose answer is known, and the script's
+contacts of a run against the robot-robot collisions of its K-robot evaluation."""
 
 import importlib.util
 from pathlib import Path
@@ -80,3 +81,31 @@ def test_collect_tabulates_the_folders_and_refuses_one_the_script_did_not_write(
     assert row.policy == "A" and row.robot_robot == 0.25 and row.head_on == 1.0 and row.other_in_front == 1.0
     assert robot_contacts.main(["--collect", f"B={tmp_path / 'none'}"]) == 2
     assert "LABEL=FOLDER" in capsys.readouterr().err
+
+
+def test_the_scripts_contacts_are_the_robot_robot_collisions_of_the_evaluation(tmp_path):
+    import jax.numpy as jnp
+    import pandas as pd
+
+    from fedjax_nav import rundir
+    from fedjax_nav.config import load_config
+    from fedjax_nav.evaluation.shared_rooms import evaluate_shared
+    from fedjax_nav.training.hparams import hparams_from_config
+    from fedjax_nav.training.trainer import Trainer
+
+    run = tmp_path / "run"
+    run.mkdir()
+    sets = ["method=iddpg", "env.worlds=[train-0,train-0]", "offpolicy.hidden=16", "run.seeds=1", "env.v_max=1.0"]
+    cfg = load_config(None, sets)
+    rundir.write_config(run, cfg)
+    rundir.write_params(run, Trainer(cfg).init_seeds(jnp.arange(1), hparams_from_config(cfg)).agents)
+    argv = [str(run), "--suite", "mixture-50", "--robots-per-room", "3", "--max-steps", "48"]
+    argv += ["--out", str(tmp_path / "c")]
+    assert robot_contacts.main(argv) == 0
+    got = pd.read_csv(tmp_path / "c" / "contacts.csv")
+    ep = evaluate_shared(run, "mixture-50", [3], max_steps=48)["episodes"]
+    assert len(got) == ep.robot_collision.sum() > 0  # untrained robots at 1 m/s do meet
+    key = ["room", "robot"]
+    want = ep[ep.robot_collision == 1].sort_values(["room", "net", "robot"])
+    assert got.sort_values(["room", "agent", "robot"])[key].values.tolist() == want[key].values.tolist()
+    assert robot_contacts.main(argv) == 2  # kept, not overwritten
