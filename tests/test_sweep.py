@@ -71,7 +71,7 @@ def test_every_shipped_sweep_loads(path):
     assert len(set(ids)) == len(ids), "two grid points resolve to the same config"
     labels = [p.label for p in s.points]
     assert len(set(labels)) == len(labels), "two grid points share a label (tables and curves group by it)"
-    spec = yaml.safe_load(path.read_text())
+    spec, _ = sf._extended(path, yaml.safe_load(path.read_text()))  # a base it `extends` from another sweep
     for p in s.points:
         base = yaml.safe_load((path.parent / str(p.values.get("base", spec.get("base")))).read_text())
         # the base config's budget (the thesis's 125 unless it says otherwise) unless swept
@@ -176,6 +176,36 @@ def test_bad_sweep_files_name_the_key(tmp_path, spec, match):
     path.write_text(yaml.safe_dump(full))
     with pytest.raises(sf.SweepError, match=match):
         sf.load_sweep(path)
+
+
+def test_a_sweep_that_extends_another_is_its_recipe_with_its_own_grid(tmp_path):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "base.yaml").write_text((ROOT / "configs" / "thesis" / "flddpg.yaml").read_text())
+    write_sweep(tmp_path, name="recipe", base="base.yaml", set=[*TINY_SET, "fed.tau=0.25"])
+    child = tmp_path / "sub" / "child.yaml"  # the parent's `base: base.yaml` is beside the parent, not the child
+    child.write_text(
+        yaml.safe_dump(
+            {"name": "child", "extends": "../recipe.yaml", "set": ["fed.tau=1.0"], "grid": {"fed.period": [1, 2]}}
+        )
+    )
+    s = sf.load_sweep(child)
+    written_out = sf.load_sweep(
+        write_sweep(tmp_path, name="flat", set=[*TINY_SET, "fed.tau=0.25", "fed.tau=1.0"], grid={"fed.period": [1, 2]})
+    )
+    assert s.seeds == 2 and s.keys == ("fed.period",)
+    assert [p.id for p in s.points] == [p.id for p in written_out.points]
+    assert all(p.cfg.fed.tau == 1.0 for p in s.points)  # its own set after the inherited one
+    # a shipped sweep's name works too, and a chain that loops is one error naming the key
+    assert sf.load_sweep(
+        write_sweep(tmp_path, name="named", extends="planning_shared_budget", grid={"run.episodes": [2]})
+    )
+    (tmp_path / "a.yaml").write_text(yaml.safe_dump({"extends": "b.yaml", "grid": {"fed.tau": [0.5]}}))
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump({"extends": "a.yaml", "grid": {"fed.tau": [0.5]}}))
+    with pytest.raises(sf.SweepError, match="extends: more than"):
+        sf.load_sweep(tmp_path / "a.yaml")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump({"extends": "nowhere.yaml", "grid": {"fed.tau": [0.5]}}))
+    with pytest.raises(sf.SweepError, match="c.yaml: extends: no sweep file 'nowhere.yaml'"):
+        sf.load_sweep(tmp_path / "c.yaml")
 
 
 def test_parse_bytes():

@@ -19,6 +19,11 @@ their tables are `fedjax_nav.analysis.sweeps`, which read the finished points fr
     evaluate: false                  # reproduce: evaluate every point with the protocol
     goal: {family: 0.95, arena: 0.95, worst10: 0.80}   # optional: the generalization report's goal
 
+A sweep may `extends: other.yaml` (beside it, or a shipped sweep's name): it takes that sweep's
+`base` (unless it gives its own), `seeds` (unless it gives its own) and `set` lines, its own `set`
+lines after them; not its grid, points, thesis, evaluate or goal. Several experiments on one recipe
+(docs/shared_rooms.md, the plan policy in shared rooms) then hold the recipe once.
+
 `goal` is what the generalization report (docs/generalization.md) checks each procedurally trained
 point against: success on every held-out family, in the thesis arena and over the worst 10% of
 rooms, each a threshold in [0, 1] (a key left out is not checked). Without it the report checks
@@ -70,7 +75,8 @@ _ID_NAMES = {new: old for old, new in LEGACY_ALIASES.items()}
 # At most this many points per sweep file (the largest shipped one has 33): 300 x 300 took
 # minutes to read before anything was said, and would train for months here.
 MAX_POINTS = 10_000
-SWEEP_KEYS = {"name", "description", "base", "seeds", "set", "grid", "points", "thesis", "evaluate", "goal"}
+SWEEP_KEYS = {"name", "description", "extends", "base", "seeds", "set", "grid", "points", "thesis", "evaluate", "goal"}
+MAX_EXTENDS = 8  # sweeps in one `extends` chain: more is a cycle (a extends b extends a) or a mistake
 GOAL_KEYS = ("family", "arena", "worst10")  # every held-out family, the thesis arena, the worst 10% of rooms
 DEFAULT_GOAL = {"family": 0.85, "arena": 0.90}  # the first generalisation experiment's (docs/generalization.md)
 
@@ -166,6 +172,29 @@ def _read_spec(path: Path) -> dict:
     if unknown:
         raise SweepError(f"{path}: unknown key(s) {sorted(unknown)}; allowed: {sorted(SWEEP_KEYS)}")
     return spec
+
+
+def _extended(path: Path, spec: dict, depth: int = 0) -> tuple[dict, list[str]]:
+    """`spec` with what it `extends` (the module's docstring): the spec with the other sweep's base
+    (resolved beside that file) and seeds where it gives none, and the `set` lines it inherits,
+    furthest ancestor first."""
+    from fedjax_nav.configs import resolve
+
+    if spec.get("extends") is None:
+        return spec, []
+    if depth >= MAX_EXTENDS:
+        raise SweepError(f"{path}: extends: more than {MAX_EXTENDS} sweeps in a chain (a cycle?)")
+    beside = path.parent / str(spec["extends"])
+    parent_path = beside if beside.is_file() else resolve(str(spec["extends"]), "sweep")
+    if not parent_path.is_file():
+        raise SweepError(f"{path}: extends: no sweep file {show(spec['extends'])} beside it or shipped")
+    parent, inherited = _extended(parent_path, _read_spec(parent_path), depth + 1)
+    merged = dict(spec)
+    if "base" not in spec and parent.get("base") is not None:
+        merged["base"] = str(base_file(parent_path, parent["base"]))
+    if "seeds" not in spec and "seeds" in parent:
+        merged["seeds"] = parent["seeds"]
+    return merged, inherited + _as_overrides(parent.get("set"), f"{parent_path}: set")
 
 
 def _combos(path: Path, spec: dict) -> list[dict]:
@@ -266,12 +295,12 @@ def load_sweep(
     from fedjax_nav.configs import resolve
 
     path = resolve(path, "sweep")
-    spec = _read_spec(path)
+    spec, inherited = _extended(path, _read_spec(path))
     name = str(spec.get("name") or path.stem)
     n_seeds = _seed_count(path, seeds if seeds is not None else spec.get("seeds", 1))
     combos = _combos(path, spec)
     keys = tuple(dict.fromkeys(k for c in combos for k in c))
-    common = _as_overrides(spec.get("set"), f"{path}: set")
+    common = inherited + _as_overrides(spec.get("set"), f"{path}: set")
     after = [*overrides, f"run.seeds={n_seeds}"]
     points = tuple(_point(path, v, v.get("base", spec.get("base")), common, after, buffer_scale) for v in combos)
     thesis = spec.get("thesis") or {}
