@@ -239,4 +239,4 @@ def test_imports_tell_a_submodule_from_a_name_of_the_init():
     import World` imports the package's `__init__` (which re-exports it): the cycle check sees that."""
     assert imports(PKG / "worlds" / "procedural.py") >= {"fedjax_nav.worlds.cave", "fedjax_nav.worlds.world"}
     assert "fedjax_nav.worlds" not in imports(PKG / "worlds" / "procedural.py")
-    assert "fedjax_nav.worlds" in imports(PKG / "env" / "nav.py")  # `from fedjax_nav.worlds import World`
+    assert "fedjax_nav.worlds" in imports(PKG / "env" / "params.py")  # `from fedjax_nav.worlds import World`

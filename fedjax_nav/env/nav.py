@@ -2,7 +2,7 @@
 
 gymnax style: `NavEnv` holds only static, shape-fixing settings (beam count, mode, collision
 test); what a user may vary per robot or sweep (the playground, the goal, speeds, noise, reward
-constants) is data in `EnvParams`. Batch with `jax.vmap` over (state, params) for robots in
+constants) is data in `EnvParams` (env/params.py). Batch with `jax.vmap` over (state, params) for robots in
 different playgrounds, and again over seeds.
 
 Observation, f32[num_beams + 4]: the ranges (clipped at `max_range`), the goal distance `d` (m),
@@ -16,7 +16,6 @@ Actions are given in those same units: `a = (v / v_max, omega / omega_max)`, cli
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import jax
@@ -24,51 +23,16 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from fedjax_nav import worlds as _worlds
 from fedjax_nav.env import plan as gp
 from fedjax_nav.env import robot as rm
 from fedjax_nav.env.geometry import lidar, nearest_distance
+from fedjax_nav.env.params import EnvParams, default_world, make_params  # the task's data; also from here
 from fedjax_nav.env.robot import unicycle  # the motion; also `fedjax_nav.env.nav.unicycle`
 from fedjax_nav.env.spaces import Box
-from fedjax_nav.worlds import World
 
 MODES = ("learn", "eval")
 NO_SEGMENTS = np.zeros((1, 4), np.float32)  # one zero-length row (never hit): a cast against circles only
 COLLISION_TESTS = ("exact", "lidar")
-
-
-@struct.dataclass
-class EnvParams:
-    """Per-robot task data. Every leaf is traced: vmap it, sweep it, or stack playgrounds in it."""
-
-    world: World
-    goal_index: jax.Array = struct.field(default_factory=lambda: jnp.int32(0))  # which goal row
-    random_starts: jax.Array = struct.field(default_factory=lambda: jnp.bool_(False))  # FLS
-    dt: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.1))  # s per control step
-    v_max: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.25))  # m/s
-    omega_max: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # rad/s
-    goal_radius: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.5))  # m, D_g
-    collision_distance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.25))  # m, D_c
-    reward_goal: jax.Array = struct.field(default_factory=lambda: jnp.float32(100.0))  # R_g
-    reward_collision: jax.Array = struct.field(default_factory=lambda: jnp.float32(-10.0))  # R_c
-    progress_scale: jax.Array = struct.field(default_factory=lambda: jnp.float32(40.0))  # R_d factor
-    range_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, std
-    action_noise: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # std, action units
-    # The robot model (read only when NavEnv(robot=True); docs/robot.md). 0 = off for each.
-    accel_lin: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m/s^2, 0 = unlimited
-    accel_ang: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # rad/s^2, 0 = unlimited
-    delay_steps: jax.Array = struct.field(default_factory=lambda: jnp.int32(0))  # <= NavEnv.max_delay
-    range_resolution: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = exact
-    range_min: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, nearer reads 0
-    dropout: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # probability per sample
-    footprint: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m, 0 = collision_distance
-    lidar_offset: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m ahead of the centre
-    plan_lookahead: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.0))  # m; NavEnv(plan=True) only
-    plan_margin: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m; NavEnv(plan=True) only
-    # Shared rooms only (docs/shared_rooms.md, "Keeping apart"): a reward on every step another robot's
-    # disc is nearer than robot_clearance to the robot's own. 0 = off.
-    reward_robot_near: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # per step
-    robot_clearance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.3))  # m between two discs
 
 
 @struct.dataclass
@@ -348,7 +312,7 @@ class NavEnv:
     def default_params(self) -> EnvParams:
         """EnvParams of `DEFAULT_WORLD` ("train-0") with every field at its default (gymnax's
         `env.default_params`; there is no world-free default: the playground is part of the params)."""
-        return make_params(_default_world())
+        return make_params(default_world())
 
     def observation_space(self, params: EnvParams | None = None) -> Box:
         """Box f32[obs_size]: ranges in [0, max_range] m, goal (plan: waypoint) distance in
@@ -372,30 +336,3 @@ class NavEnv:
     def action_space(self, params: EnvParams | None = None) -> Box:
         """Box f32[2]: (v / v_max, omega / omega_max) in [0, 1] x [-1, 1], what `step` clips to."""
         return Box(jnp.array([0.0, -1.0], jnp.float32), jnp.array([1.0, 1.0], jnp.float32), (2,), jnp.float32)
-
-
-def make_params(world: World, **overrides) -> EnvParams:
-    """EnvParams for one world, or for a stacked World (leading playground axis), in which case
-    scalar fields are broadcast to that axis (pass arrays of that length to vary them)."""
-    base = EnvParams(world=world)
-    batch = world.segments.shape[:-2]
-    fields = {}
-    for name in EnvParams.__dataclass_fields__:
-        if name == "world":
-            continue
-        default = getattr(base, name)
-        value = jnp.asarray(overrides.pop(name, default), default.dtype)
-        fields[name] = jnp.broadcast_to(value, batch) if value.ndim == 0 else value
-    if overrides:
-        raise TypeError(f"EnvParams has no field '{sorted(overrides)[0]}'")
-    return base.replace(**fields)
-
-
-# ----------------------------------------------------------------------------- the default world
-
-DEFAULT_WORLD = "train-0"  # the world of `NavEnv.default_params` and of `env.make` without `world=`
-
-
-@functools.lru_cache(maxsize=1)
-def _default_world() -> World:
-    return _worlds.load(DEFAULT_WORLD)

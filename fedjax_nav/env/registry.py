@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Sequence
 
 from fedjax_nav import worlds as _worlds
-from fedjax_nav.env.nav import DEFAULT_WORLD, EnvParams, NavEnv, make_params
+from fedjax_nav.env.nav import NavEnv
+from fedjax_nav.env.params import DEFAULT_WORLD, EnvParams, make_params
 from fedjax_nav.worlds import World
 
 ENV_IDS = ("Nav-v0", "fedjax_nav/Nav-v0")  # the names `make` knows (the second is the gymnasium id)
