@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from fedjax_nav.deploy.policy_inputs import wrap_angle
+
 NEAR = 1.0  # m: "the other robot is near" (two discs of 0.25 m and a robot's length)
 SPEED_WINDOW = 10  # steps over which a robot's speed is measured before the contact
 HEADINGS = ((45.0, "same way"), (135.0, "crossing"), (180.0, "head-on"))  # |heading difference| <= deg
@@ -31,7 +33,8 @@ STILL = 0.02  # m/s: a robot slower than this over the window stood still
 
 
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
-    return np.abs((np.degrees(a) + 180.0) % 360.0 - 180.0)
+    """|a| in degrees, a wrapped to [-pi, pi] as the simulator wraps it."""
+    return np.abs(np.degrees(wrap_angle(a)))
 
 
 def _bin(value: float, bins) -> str:
@@ -87,8 +90,7 @@ def shares(df: pd.DataFrame) -> dict:
         "where": df["where"].value_counts(normalize=True).round(3).to_dict(),
         "one_stood_still": round(float(still.mean()), 3),
         "near_steps_median": float(df.near_steps.median()),
-        "speed_median": round(float(df.speed.median()), 3),
-        "other_speed_median": round(float(df.other_speed.median()), 3),
+        "speed_median": round(float(df.speed.median()), 3),  # both robots of a contact: one row each
     }
 
 
