@@ -3,9 +3,11 @@ agents evaluated with K robots per room (the protocol of `fedjax-nav evaluate --
 the same keys), every robot-robot collision taken apart from the trajectories: how the two robots
 were heading (head-on, crossing, the same way), where the other robot was (in front, beside,
 behind), how fast each drove over the last second, and for how many steps the other had been
-within 1 m before the contact. Writes `contacts.csv` (one row per robot-robot collision),
-`contacts.json` (the shares) and `contacts.png` (the last 6 s of the first contacts). With
---collect, the table of several such folders (one row each) instead.
+within 1 m before the contact, and the room the two had to pass (the contact midpoint's distance
+to the nearest wall or obstacle: under 2 D_c two discs cannot stand abreast there). Writes
+`contacts.csv` (one row per robot-robot collision), `contacts.json` (the shares) and
+`contacts.png` (the last 6 s of the first contacts). With --collect, the table of several such
+folders (one row each) instead.
 
     python scripts/robot_contacts.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 \
         --set env.plan_cells=128 --suite mixture-50 --robots-per-room 4 --out runs/x/contacts
@@ -30,6 +32,9 @@ SPEED_WINDOW = 10  # steps over which a robot's speed is measured before the con
 HEADINGS = ((45.0, "same way"), (135.0, "crossing"), (180.0, "head-on"))  # |heading difference| <= deg
 BEARINGS = ((45.0, "in front"), (135.0, "beside"), (180.0, "behind"))  # |the other's bearing| <= deg
 STILL = 0.02  # m/s: a robot slower than this over the window stood still
+# The room to pass: two robots abreast, each D_c from the walls and 2 D_c apart, need a way 4 D_c
+# wide, a midpoint at least 2 D_c from the nearest wall when centred (worlds.CLEARANCE = D_c).
+ABREAST = 2.0
 
 
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
@@ -79,6 +84,25 @@ def contacts(poses: np.ndarray, steps: np.ndarray, robot_collision: np.ndarray, 
     return pd.DataFrame(rows)
 
 
+def room_to_pass(df: pd.DataFrame, poses: np.ndarray, world) -> pd.DataFrame:
+    """`df` with `wall_clearance` (m from the contact's midpoint, between the two robots' centres,
+    to the nearest wall or obstacle of its room; the env's exact distance) and `narrow` (that
+    clearance under ABREAST x D_c). `poses` [rooms, agents, T + 1, k, 3]; `world` World [rooms]."""
+    if df.empty:
+        return df.assign(wall_clearance=[], narrow=[])
+    import jax
+
+    from fedjax_nav.env.geometry import nearest_distance
+    from fedjax_nav.worlds import CLEARANCE
+
+    r, a, s, i, j = (df[c].to_numpy(np.int64) for c in ("room", "agent", "step", "robot", "other"))
+    mid = (poses[r, a, s, i, :2] + poses[r, a, s, j, :2]) / 2
+    rows = jax.tree.map(lambda x: x[r], world)
+    d = jax.vmap(lambda w, p: nearest_distance(w.segments, p, w.circles))(rows, mid.astype(np.float32))
+    d = np.asarray(jax.device_get(d), np.float64)
+    return df.assign(wall_clearance=d, narrow=d < ABREAST * CLEARANCE)
+
+
 def shares(df: pd.DataFrame) -> dict:
     """The shares of the contacts by kind, by where the other was, by who stood still."""
     if df.empty:
@@ -90,6 +114,7 @@ def shares(df: pd.DataFrame) -> dict:
         "where": df["where"].value_counts(normalize=True).round(3).to_dict(),
         "one_stood_still": round(float(still.mean()), 3),
         "near_steps_median": float(df.near_steps.median()),
+        **({"narrow": round(float(df.narrow.mean()), 3)} if "narrow" in df else {}),
         "speed_median": round(float(df.speed.median()), 3),  # both robots of a contact: one row each
     }
 
@@ -139,6 +164,7 @@ def table(folders: dict) -> pd.DataFrame:
                 "one_stood_still": s.get("one_stood_still", 0.0),
                 "speed_median": s.get("speed_median", 0.0),
                 "near_steps_median": s.get("near_steps_median", 0.0),
+                "narrow": s.get("narrow", float("nan")),  # folders written before the measure: NaN
             }
         )
     return pd.DataFrame(rows)
@@ -204,7 +230,7 @@ def main(argv=None) -> int:
             df = contacts(poses, res["steps"][r, g], res["robot_collision"][r, g], float(cfg.env.dt))
             frames.append(df.assign(room=r, family=pr.families[r], agent=g))
             panels += [(row, poses) for _, row in df.iterrows() if row.robot < row.other][: 8 - len(panels)]
-    df = pd.concat(frames, ignore_index=True)
+    df = room_to_pass(pd.concat(frames, ignore_index=True), res["poses"], pr.world)
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "contacts.csv", index=False)
     summary = {"run": str(a.run), "suite": a.suite, "robots_per_room": k, "robot_episodes": int(R * A * k)}

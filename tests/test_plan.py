@@ -336,3 +336,55 @@ def test_with_the_margin_the_walk_leaves_a_cell_whose_next_cells_are_hidden():
             world=SimpleNamespace(size=size), plan_lookahead=jnp.float32(0.5), plan_margin=jnp.float32(m)
         )
         np.testing.assert_allclose(np.asarray(plan.at(kept, p, goal, xy)), want, atol=1e-6)
+
+
+def _open_room(w: float = 6.0, h: float = 3.0):
+    """A w x h m room with nothing in it, its field to the goal at (2.5, 0)."""
+    from fedjax_nav.worlds.world import from_dict
+
+    world = from_dict({"size": [w, h], "starts": [[-2.0, 0.0, 0.0]], "goals": [[2.5, 0.0]]})[0]
+    return world, plan.goal_field(world, world.goals[0], D_C, D_G, CELLS)[0]
+
+
+def test_keeping_right_moves_the_waypoint_right_only_while_a_robot_is_near_and_ahead():
+    world, field = _open_room()
+    kr = jax.jit(plan.keep_right)
+    xy, wp = jnp.array([0.0, 0.0]), jnp.array([1.0, 0.0])  # driving +x: its right is -y
+
+    def robots(*rows):
+        return jnp.array([list(r) for r in rows] + [[9.0, 9.0, 0.0]], jnp.float32)  # and an absent row
+
+    head_on = robots((1.0, 0.0, D_C))
+    assert np.allclose(kr(field, world.size, xy, wp, head_on, 0.3, 1.5), [1.0, -0.3])
+    # the other robot of the meeting, driving -x from (1, 0): its right is +y, so the two part
+    assert np.allclose(kr(field, world.size, jnp.array([1.0, 0.0]), xy, robots((0.0, 0.0, D_C)), 0.3, 1.5), [0.0, 0.3])
+    assert np.array_equal(kr(field, world.size, xy, wp, head_on, 0.0, 1.5), wp)  # off: the waypoint bitwise
+    for rows in (((-1.0, 0.0, D_C),), ((2.0, 0.0, D_C),), ((1.0, 0.0, 0.0),)):  # behind, too far, absent
+        assert np.array_equal(kr(field, world.size, xy, wp, robots(*rows), 0.3, 1.5), wp), rows
+    assert np.allclose(kr(field, world.size, xy, wp, robots((2.0, 0.0, D_C)), 0.3, 2.5), [1.0, -0.3])  # reach
+    # near the wall y = -1.5 (cells of 0.125 m: the free ones are those above y = -1.25, their centres
+    # D_c or more from the wall): 0.3 m right would leave them, 0.15 m does not
+    xy, wp = jnp.array([0.0, -1.0]), jnp.array([1.0, -1.0])
+    got = np.asarray(kr(field, world.size, xy, wp, robots((1.0, -1.0, D_C)), 0.3, 1.5))
+    assert np.allclose(got, [1.0, -1.15])
+    # nearer still: not even half fits, the waypoint stays
+    xy, wp = jnp.array([0.0, -1.2]), jnp.array([1.0, -1.2])
+    assert np.array_equal(kr(field, world.size, xy, wp, robots((1.0, -1.2, D_C)), 0.3, 1.5), wp)
+
+
+def test_a_shared_rooms_observation_keeps_right_with_the_params():
+    from fedjax_nav.env import NavEnv, make_params, shared
+
+    world, _ = _open_room()
+    fleet = shared.own(world, jnp.array([-1.0, 0.0, 0.0]), jnp.array([2.5, 0.0]))
+    env = NavEnv(episode_length=8, plan=True, plan_cells=CELLS)
+    others = jnp.array([[0.0, 0.0, D_C]], jnp.float32)  # 1 m ahead
+    obs = {}
+    for kr in (0.0, 0.3):
+        params = make_params(fleet, plan_lookahead=1.0, plan_keep_right=kr)
+        _, st = env.reset(jax.random.key(0), params)
+        obs[kr] = np.asarray(env.observe(jax.random.key(1), st, jnp.full(24, 3.5), params, others=others))
+    alone = np.asarray(env.observe(jax.random.key(1), st, jnp.full(24, 3.5), params))
+    assert np.array_equal(obs[0.0], alone)  # off: as without others
+    bearing = obs[0.3][25]  # the waypoint's bearing: to the right of the heading (negative)
+    assert bearing < -0.2 and np.isclose(obs[0.3][24], np.hypot(1.0, 0.3), atol=0.1)

@@ -109,3 +109,28 @@ def test_the_scripts_contacts_are_the_robot_robot_collisions_of_the_evaluation(t
     want = ep[ep.robot_collision == 1].sort_values(["room", "net", "robot"])
     assert got.sort_values(["room", "agent", "robot"])[key].values.tolist() == want[key].values.tolist()
     assert robot_contacts.main(argv) == 2  # kept, not overwritten
+
+
+def test_the_room_to_pass_is_the_midpoints_distance_to_the_nearest_wall():
+    # a room 6 x 0.8 m (a corridor too narrow for two robots abreast) and one 6 x 3 m; the same
+    # head-on meeting on the long axis of each: the midpoint is 0.4 m and 1.5 m from the side walls
+    import jax
+    import pandas as pd
+
+    from fedjax_nav.worlds import stack
+    from fedjax_nav.worlds.world import from_dict
+
+    rooms = [from_dict({"size": [6.0, h], "starts": [[-2.0, 0.0, 0.0]], "goals": [[2.0, 0.0]]})[0] for h in (0.8, 3.0)]
+    world = stack(rooms)
+    a, b = straight((-1.5, 0.0), 0.0, V, 60), straight((1.5, 0.0), np.pi, V, 60)
+    poses = np.stack([a, b], axis=1)  # [T + 1, 2, 3]
+    s = int(np.argmax(np.linalg.norm(a[:, :2] - b[:, :2], axis=-1) < 0.5))
+    frames = [
+        robot_contacts.contacts(poses, np.array([s, s]), np.array([True, True]), DT).assign(room=r, agent=0)
+        for r in range(2)
+    ]
+    all_poses = np.broadcast_to(poses, (2, 1) + poses.shape)  # [rooms, agents, T + 1, k, 3]
+    df = robot_contacts.room_to_pass(pd.concat(frames, ignore_index=True), all_poses, jax.device_get(world))
+    assert df.wall_clearance.to_numpy() == pytest.approx([0.4] * 2 + [1.5] * 2, abs=1e-5)
+    assert df.narrow.tolist() == [True, True, False, False]
+    assert robot_contacts.shares(df)["narrow"] == 0.5

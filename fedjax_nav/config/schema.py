@@ -174,6 +174,23 @@ class EnvConfig:
         doc="env.plan: m beyond the collision distance within which the path's cells cost more, so that "
         "it keeps from walls where it can (0: the shortest path; docs/planning.md)",
     )
+    plan_keep_right: float = _f(
+        0.0,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="env.plan in shared rooms: m the waypoint moves to the right of the robot's way while another "
+        "robot is near and ahead, so that two robots meeting head-on pass on opposite sides (0 = off; "
+        "docs/shared_rooms.md, 'Keeping right')",
+    )
+    plan_keep_right_reach: float = _f(
+        1.5,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="env.plan_keep_right: m between two robots' centres within which a robot keeps right of another "
+        "ahead of it",
+    )
 
 
 @dataclass(frozen=True)

@@ -150,9 +150,12 @@ class NavEnv:
             return jnp.where(params.footprint > 0, params.footprint, params.collision_distance)
         return params.collision_distance
 
-    def observe(self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams, at=None) -> jax.Array:
+    def observe(
+        self, key: jax.Array, state: EnvState, ranges: jax.Array, params: EnvParams, at=None, others=None
+    ) -> jax.Array:
         """The observation at `state` from the true scan `ranges`; `at`: the plan's waypoint when
-        known (a start row's, kept in the plan), else computed here."""
+        known (a start row's, kept in the plan), else computed here; `others` (a shared room): the
+        other robots, which move the waypoint right by `EnvParams.plan_keep_right` (`plan.keep_right`)."""
         if self.robot:
             values, invalid = rm.measure(key, ranges, params, self.max_range, self.noise, self.dropout_value)
             ranges = rm.pool_min(values, invalid, self.num_beams, self.max_range)
@@ -162,6 +165,9 @@ class NavEnv:
         target, dist = state.goal, state.dist
         if self.plan:  # the waypoint in place of the goal; the goal's distance as the last entry
             target = at if at is not None else gp.at(state.plan, params, state.goal, state.pose[:2])
+            if others is not None:
+                keep = (params.plan_keep_right, params.plan_keep_right_reach)
+                target = gp.keep_right(state.plan.field, params.world.size, state.pose[:2], target, others, *keep)
             dist = jnp.linalg.norm(target - state.pose[:2])
         rel = target - state.pose[:2]
         bearing = jnp.arctan2(rel[1], rel[0]) - state.pose[2]
@@ -269,7 +275,7 @@ class NavEnv:
             collision = collision | info["robot_collision"]
             near = to_other < self.radius(params) + params.robot_clearance
         terminated = goal | collision
-        final_obs = self.observe(k_obs, moved, ranges, params)
+        final_obs = self.observe(k_obs, moved, ranges, params, others=others)
         obs = final_obs
         if self.mode == "learn":
             start = self._start(k_reset, params, moved.t, state.start_ranges, state.plan)
@@ -278,7 +284,7 @@ class NavEnv:
             if others is not None:  # the start's cached scan, with the robots where they are now
                 scan = jnp.minimum(scan, self._cast(NO_SEGMENTS, others, start.pose, params))
             at = state.plan.starts[start.start_index] if self.plan else None
-            obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params, at), obs)
+            obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params, at, others), obs)
         reward = (
             params.progress_scale * (state.dist - dist)
             + jnp.where(goal, params.reward_goal, 0.0)

@@ -46,6 +46,10 @@ class EnvParams:
     # disc is nearer than robot_clearance to the robot's own. 0 = off.
     reward_robot_near: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # per step
     robot_clearance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.3))  # m between two discs
+    # Shared rooms with NavEnv(plan=True) (docs/shared_rooms.md, "Keeping right"): m the waypoint moves
+    # to the right while another robot's centre is within plan_keep_right_reach and ahead. 0 = off.
+    plan_keep_right: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m
+    plan_keep_right_reach: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.5))  # m
 
 
 def make_params(world: World, **overrides) -> EnvParams:

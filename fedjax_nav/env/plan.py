@@ -12,6 +12,7 @@ cells per side, `cells`, so that rooms of any size share one program.
     p = make(params, goal, D_c, cells)                   Plan: the field, the costs, the starts' waypoints
     names = layout(plan)                                 the observation's entries after the ranges
     wp = at(p, params, goal, xy)                         the waypoint with the params' lookahead
+    wp = keep_right(field, size, xy, wp, others, offset, reach)  shared rooms: moved right, a robot ahead
 
 The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from the room's corner
 (-W/2, -H/2); a cell is free when its centre lies inside the room and keeps at least the
@@ -217,12 +218,9 @@ def waypoint(
     here = jnp.isfinite(field[y0, x0])
     iy, ix = jnp.where(here, y0, ny[k]), jnp.where(here, x0, nx[k])
     start = field[iy, ix]
-    t = (jnp.arange(SIGHT, dtype=jnp.float32) + 1.0) / SIGHT
 
     def in_sight(cy, cx):
-        pts = xy[None, :] + t[:, None] * (jnp.stack([xs[cx], ys[cy]]) - xy)[None, :]
-        py, px = jax.vmap(lambda p: cell_of(p, size, cells))(pts)
-        return jnp.all(jnp.isfinite(field[py, px]) | ((py == y0) & (px == x0)))
+        return clear_way(field, size, xy, jnp.stack([xs[cx], ys[cy]]))
 
     def cond(c):
         cy, cx, walked, moving = c
@@ -240,6 +238,35 @@ def waypoint(
     point = jnp.stack([xs[cx], ys[cy]])
     use_goal = ~jnp.isfinite(start) | (start <= lookahead)
     return jnp.where(use_goal, goal, point)
+
+
+def clear_way(field: jax.Array, size, xy: jax.Array, point: jax.Array) -> jax.Array:
+    """bool[]: every one of `SIGHT` points on the straight way from `xy` to `point` lies in a free
+    cell of `field` (finite), the cell of `xy` itself aside."""
+    cells = field.shape[0]
+    y0, x0 = cell_of(xy, size, cells)
+    t = (jnp.arange(SIGHT, dtype=jnp.float32) + 1.0) / SIGHT
+    pts = xy[None, :] + t[:, None] * (point - xy)[None, :]
+    py, px = jax.vmap(lambda p: cell_of(p, size, cells))(pts)
+    return jnp.all(jnp.isfinite(field[py, px]) | ((py == y0) & (px == x0)))
+
+
+def keep_right(field: jax.Array, size, xy: jax.Array, wp: jax.Array, others: jax.Array, offset, reach) -> jax.Array:
+    """f32[2]: the waypoint `wp` of a robot at `xy` in a shared room, moved `offset` m to the right
+    of the robot's way to it (xy -> wp) while another robot of `others` (circles f32[K, 3], r = 0:
+    none) has its centre within `reach` m of the robot's and ahead (in front of the line through `xy`
+    across that way): the traffic rule that sends two robots meeting head-on to opposite sides
+    (docs/shared_rooms.md, "Keeping right"). The moved point when its way from `xy` is clear
+    (`clear_way`), else the point half as far, else `wp`; `wp` exactly when `offset` is 0 or no
+    robot is near."""
+    way = wp - xy
+    ahead = way / jnp.maximum(jnp.linalg.norm(way), 1e-6)
+    right = jnp.stack([ahead[1], -ahead[0]])
+    rel = others[:, :2] - xy[None, :]
+    near = (others[:, 2] > 0) & (jnp.linalg.norm(rel, axis=-1) < reach) & (rel @ ahead > 0)
+    full, half = wp + offset * right, wp + 0.5 * offset * right
+    moved = jnp.where(clear_way(field, size, xy, full), full, jnp.where(clear_way(field, size, xy, half), half, wp))
+    return jnp.where(jnp.any(near) & (offset > 0), moved, wp)
 
 
 def reachable(world, goal: jax.Array, clearance: jax.Array, goal_radius: jax.Array, cells: int) -> jax.Array:
