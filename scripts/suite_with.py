@@ -6,13 +6,15 @@ config, through the learned policies' protocol. Written as `fedjax-nav evaluate 
 it (suite.json, suite_families.csv, suite_episodes.csv), so scripts/suite_table.py sets it beside
 the runs'. With --robots-per-room K,..: K robots per room (docs/shared_rooms.md, "Evaluation"),
 written as `fedjax-nav evaluate --robots-per-room` writes it (shared.json, shared_families.csv,
-shared_episodes.csv).
+shared_episodes.csv, and the fleet's trajectories in the first room, shared_trajectories.png); with
+--world in place of --suite, in that world, robot i from its start i to its goal i.
 
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 --suite maze-50 --out x/m03
     python scripts/suite_with.py RUN --follower --suite dense-heldout --out runs/x/follower-dense
     python scripts/suite_with.py configs/learners/ppo.yaml --follower --set env.plan=true --suite heldout --out runs/x/f
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --robots-per-room 1,2,4,8 --suite dense-heldout --out x/k
     python scripts/suite_with.py RUN --set env.plan_margin=0.3 --max-steps 2048 --suite indoor-heldout --out x/t2048
+    python scripts/suite_with.py RUN --set env.plan_keep_right=0.45 --robots-per-room 4 --world eval-crossing --out x/c
 """
 
 from __future__ import annotations
@@ -37,14 +39,19 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="the evaluation's folder (refused when it holds one)")
     ap.add_argument("--robots-per-room", default=None, help="K robots per room, e.g. 1,2,4,8 (default: one per room)")
     ap.add_argument("--max-steps", type=int, default=None, help="time-out T (default: the run's episode_length)")
+    ap.add_argument("--world", default=None, help="with --robots-per-room: this world in place of --suite")
     a = ap.parse_args(argv)
+    if a.world is not None and a.robots_per_room is None:
+        print("error: --world: only with --robots-per-room (one robot per room runs a --suite)", file=sys.stderr)
+        return 2
+    suite = None if a.world is not None else a.suite
 
     from fedjax_nav.config import ConfigError, load_config, traced_fields
     from fedjax_nav.config.io import overridden_keys
     from fedjax_nav.evaluation.baselines import follower_run
     from fedjax_nav.evaluation.limits import EvalError
     from fedjax_nav.evaluation.runs import load_run
-    from fedjax_nav.evaluation.shared_rooms import evaluate_shared, write_shared
+    from fedjax_nav.evaluation.shared_rooms import evaluate_shared, shared_figure, write_shared
     from fedjax_nav.evaluation.suite import SUITE_JSON, evaluate_suite, write_suite
     from fedjax_nav.rundir import SHARED_JSON
 
@@ -70,9 +77,9 @@ def main(argv=None) -> int:
         cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
         run = follower_run(cfg, out) if a.follower else dataclasses.replace(load_run(src), cfg=cfg)
         if ks is not None:
-            res = evaluate_shared(run, a.suite, ks, attempts=a.attempts, max_steps=a.max_steps)
+            res = evaluate_shared(run, suite, ks, attempts=a.attempts, max_steps=a.max_steps, world=a.world)
         else:
-            res = evaluate_suite(run, a.suite, attempts=a.attempts, max_steps=a.max_steps)
+            res = evaluate_suite(run, suite, attempts=a.attempts, max_steps=a.max_steps)
     except (ConfigError, EvalError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -80,6 +87,7 @@ def main(argv=None) -> int:
         cols = ["robots_per_room", "family", "success", "worst10", "collision", "robot_collision", "timeout"]
         print(res["families"][cols].to_string(index=False))
         write_shared(res, out)
+        shared_figure(run, suite, max(ks), out, max_steps=a.max_steps, world=a.world, attempts=a.attempts)
         print(f"wrote {out}/")
         return 0
     fams = res["families"]

@@ -140,3 +140,17 @@ def test_a_runs_agents_under_a_traced_value_changed_with_k_robots_per_room(tmp_p
     bad = [str(run), "--suite", str(rooms), "--robots-per-room", "two", "--out", str(tmp_path / "c")]
     assert suite_with.main(bad) == 2
     assert "--robots-per-room" in capsys.readouterr().err
+
+
+def test_the_script_drives_a_fleet_in_a_world_and_draws_it(tmp_path, capsys):
+    """--world with --robots-per-room: robot i from the world's start i to its goal i (the arena
+    crossing), written as `fedjax-nav evaluate --world W --robots-per-room K` writes it."""
+    cfg_file = tmp_path / "plan.yaml"
+    cfg_file.write_text(json.dumps({"learner": "ppo", "method": "snddpg", "env": {"episode_length": 64}}))
+    out = tmp_path / "crossing"
+    base = [str(cfg_file), "--follower", "--set", "env.plan=true", "--set", "env.plan_cells=32"]
+    assert suite_with.main([*base, "--robots-per-room", "2", "--world", "eval-crossing", "--out", str(out)]) == 0
+    ep = pd.read_csv(out / "shared_episodes.csv")
+    assert set(ep.robots_per_room) == {2} and len(ep) == 2 and (out / "shared_trajectories.png").stat().st_size > 0
+    assert suite_with.main([*base, "--world", "eval-crossing", "--out", str(tmp_path / "one")]) == 2
+    assert "--world: only with --robots-per-room" in capsys.readouterr().err
