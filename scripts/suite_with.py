@@ -20,13 +20,8 @@ shared_episodes.csv, and the fleet's trajectories in the first room, shared_traj
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
-
-# static settings a run's agents may be evaluated under: they change the compiled program, not the
-# observation the networks were built for (the plan's grid: a finer one for rooms larger than trained in)
-PROGRAM_ONLY = ("env.plan_cells",)
 
 
 def main(argv=None) -> int:
@@ -46,11 +41,10 @@ def main(argv=None) -> int:
         return 2
     suite = None if a.world is not None else a.suite
 
-    from fedjax_nav.config import ConfigError, load_config, traced_fields
-    from fedjax_nav.config.io import overridden_keys
+    from fedjax_nav.config import ConfigError, load_config
     from fedjax_nav.evaluation.baselines import follower_run
     from fedjax_nav.evaluation.limits import EvalError
-    from fedjax_nav.evaluation.runs import load_run
+    from fedjax_nav.evaluation.overrides import run_with
     from fedjax_nav.evaluation.shared_rooms import evaluate_shared, shared_figure, write_shared
     from fedjax_nav.evaluation.suite import SUITE_JSON, evaluate_suite, write_suite
     from fedjax_nav.rundir import SHARED_JSON
@@ -65,17 +59,11 @@ def main(argv=None) -> int:
     except ValueError:
         print(f"error: --robots-per-room: integers separated by commas, got {a.robots_per_room!r}", file=sys.stderr)
         return 2
-    fixed = sorted(k for k in overridden_keys(a.set) if k not in (*traced_fields(), *PROGRAM_ONLY))
-    if not a.follower and fixed:  # a run's networks were built for its static settings
-        print(
-            f"error: --set {fixed[0]}: not a traced value; a run's agents take traced values only "
-            f"(and {', '.join(PROGRAM_ONLY)})",
-            file=sys.stderr,
-        )
-        return 2
-    try:
-        cfg = load_config(src / "config.yaml" if src.is_dir() else src, a.set)
-        run = follower_run(cfg, out) if a.follower else dataclasses.replace(load_run(src), cfg=cfg)
+    try:  # a run's agents: traced values only (evaluation.overrides); the follower: any config
+        if a.follower:  # in the env of a run (its config.yaml) or of a config file
+            run = follower_run(load_config(src / "config.yaml" if src.is_dir() else src, a.set), out)
+        else:
+            run = run_with(src, a.set)
         if ks is not None:
             res = evaluate_shared(run, suite, ks, attempts=a.attempts, max_steps=a.max_steps, world=a.world)
         else:

@@ -76,7 +76,16 @@ def test_the_script_writes_the_suite_tables_and_keeps_them(walled, tmp_path, cap
     assert "exists" in capsys.readouterr().err
     assert (
         suite_with.main(
-            [str(cfg_file), "--set", "env.plan_margin=-1", "--suite", str(walled), "--out", str(tmp_path / "g")]
+            [
+                str(cfg_file),
+                "--follower",
+                "--set",
+                "env.plan_margin=-1",
+                "--suite",
+                str(walled),
+                "--out",
+                str(tmp_path / "g"),
+            ]
         )
         == 2
     )

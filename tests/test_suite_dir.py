@@ -190,3 +190,37 @@ def test_the_cli_refuses_a_suite_folder_with_a_symlink_loop_in_one_line_exit_2(t
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(lines) == 1 and str(bad) in lines[0] and words in lines[0], lines
     assert not rundir.eval_dir(run, "maps").exists()
+
+
+def test_evaluate_set_drives_the_runs_agents_under_a_changed_value_into_out(evaluated, tmp_path, capsys):
+    """`fedjax-nav evaluate RUN --suite DIR --set KEY=VALUE --out DIR`: the far room, a time-out at
+    the run's speed, is reached at 4x it; written into --out only, the run's own eval/ untouched;
+    a static key, several runs or no --out are one line and exit 2."""
+    run, maps, rc, kept = evaluated
+    assert rc == 0
+    before = sorted(p.name for p in (run / "eval").iterdir())
+    argv = ["evaluate", str(run), "--suite", str(maps), "--attempts", "1", "--max-steps", str(STEPS)]
+    out = tmp_path / "fast"
+    assert main([*argv, "--set", "env.v_max=1.0", "--out", str(out)]) == 0
+    fast = pd.read_csv(out / rundir.SUITE_EPISODES)
+    own = pd.read_csv(kept / rundir.SUITE_EPISODES)
+    assert own.loc[own.family == "far", "timeout"].all() and fast.loc[fast.family == "far", "success"].all()
+    assert sorted(p.name for p in (run / "eval").iterdir()) == before and (out / "worst_rooms.png").exists()
+    assert f"({run})" in capsys.readouterr().out  # the run named by its folder
+    for bad, says in (
+        (["--set", "env.num_beams=12", "--out", str(tmp_path / "b")], "env.num_beams: not a traced value"),
+        (["--set", "env.v_max=1.0"], "--set: evaluates one run into --out"),
+    ):
+        assert main([*argv, *bad]) == 2
+        err = capsys.readouterr().err
+        assert says in err and len(err.strip().splitlines()) == 1, err
+    world = tmp_path / "world"  # one world, one robot per room, and K robots per room
+    assert (
+        main(["evaluate", str(run), "--world", str(maps / "open.yaml"), "--set", "env.v_max=1.0", "--out", str(world)])
+        == 0
+    )
+    assert (world / "eval.json").exists()
+    shared = tmp_path / "shared"
+    argv = ["evaluate", str(run), "--suite", str(maps), "--robots-per-room", "2", "--set", "env.v_max=1.0"]
+    assert main([*argv, "--max-steps", str(STEPS), "--out", str(shared)]) == 0
+    assert (shared / rundir.SHARED_JSON).exists() and (shared / rundir.SHARED_FIGURE).exists()

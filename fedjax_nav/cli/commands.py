@@ -117,6 +117,7 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
         memory_budget=budget,
     )
     try:
+        run_dirs = _runs_under(args)
         robot = None
         if getattr(args, "robot", None):  # evaluate under another robot model (docs/robot.md)
             from fedjax_nav.robots import ROBOT_MODELS, RobotConfig
@@ -129,23 +130,36 @@ def _evaluate_locked(args: argparse.Namespace, budget: int | None = None) -> int
                 raise UserError("--robot: not with --robots-per-room (shared rooms run the run's own robot model)")
             from fedjax_nav.evaluation.shared_rooms import evaluate_shared_runs
 
-            if args.out is not None and len(args.run_dirs) > 1:
+            if args.out is not None and len(run_dirs) > 1:
                 raise UserError("--out: with --robots-per-room it names one run's folder; evaluate the runs one by one")
             kw = {k: common[k] for k in ("range_noise", "action_noise", "seed", "max_steps", "attempts", "out")}
             if not getattr(args, "suite", None):  # a world's own starts and goals, robot i: start i -> goal i
                 kw["world"] = args.world
-            evaluate_shared_runs(args.run_dirs, args.suite, args.robots_per_room, figures=not args.no_figures, **kw)
+            evaluate_shared_runs(run_dirs, args.suite, args.robots_per_room, figures=not args.no_figures, **kw)
             return 0
         if getattr(args, "suite", None):  # held-out generated rooms, per family with CIs (docs/generalization.md)
             from fedjax_nav.evaluation.suite import evaluate_suite_runs
 
             then = None if args.no_figures else _worst(args.suite)
-            evaluate_suite_runs(args.run_dirs, args.suite, then=then, robot=robot, **common)
+            evaluate_suite_runs(run_dirs, args.suite, then=then, robot=robot, **common)
             return 0
-        evaluate_runs(args.run_dirs, world=args.world, figures=not args.no_figures, robot=robot, **common)
+        evaluate_runs(run_dirs, world=args.world, figures=not args.no_figures, robot=robot, **common)
     except EvalError as e:
         raise UserError(str(e)) from None
     return 0
+
+
+def _runs_under(args: argparse.Namespace) -> list:
+    """The runs `evaluate` drives: the folders as given, or with --set the one run's agents under
+    the changed values (`evaluation.overrides.run_with`), written only into --out: a run's own
+    eval/ folders hold what its own config gives."""
+    if not getattr(args, "set", None):
+        return args.run_dirs
+    if len(args.run_dirs) != 1 or args.out is None:
+        raise UserError("--set: evaluates one run into --out (a run's own eval/ keeps its own values)")
+    from fedjax_nav.evaluation.overrides import run_with
+
+    return [run_with(args.run_dirs[0], args.set)]
 
 
 def _worst(suite: str):

@@ -213,6 +213,14 @@ def add_evaluate(sub) -> None:
         metavar="SIZE",
         help="refuse an evaluation whose estimated memory exceeds SIZE, e.g. 4G (default: the available memory)",
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="evaluate under a changed traced value (or env.plan_cells), as `train --set`, e.g. --set "
+        "env.plan_keep_right=0.45 (docs/shared_rooms.md); one run, into --out (its own eval/ keeps its own values)",
+    )
     p.set_defaults(func=_evaluate)
 
 

@@ -59,3 +59,8 @@ class RunEvaluation:
     def eval_dir(self) -> Path:
         """Where this evaluation is kept by default: RUN/eval/<world>/ (rundir.eval_dir)."""
         return rundir.eval_dir(self.run.run_dir, self.world_arg)
+
+
+def run_name(run) -> str:
+    """A run directory, or a `RunAgents`' own, as a line names it."""
+    return str(run.run_dir) if isinstance(run, RunAgents) else str(run)

@@ -351,7 +351,7 @@ def evaluate_runs(
     for flag, std in (("--range-noise", range_noise), ("--action-noise", action_noise)):
         if not 0 <= std < float("inf"):  # NaN fails too
             raise EvalError(f"{flag}: the noise std must be finite and >= 0, got {std}")
-    runs = [load_run(d) for d in run_dirs]
+    runs = [d if isinstance(d, RunAgents) else load_run(d) for d in run_dirs]  # RunAgents: `evaluate --set`
     w, _ = _worlds.load_with_meta(world)  # a bad world (WorldError) fails before any compilation
     for run in runs:
         check_run_memory(run, w, attempts, max_steps, robot, memory_budget)

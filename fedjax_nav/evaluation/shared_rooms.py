@@ -37,7 +37,7 @@ from fedjax_nav.env.shared import fixed_fleet, fleet_others, place_fleet
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.evaluation.policies import as_memory_policy
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
-from fedjax_nav.evaluation.run_data import RunAgents
+from fedjax_nav.evaluation.run_data import RunAgents, run_name
 from fedjax_nav.evaluation.runs import load_run, run_policy
 from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
 from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
@@ -286,7 +286,7 @@ def evaluate_shared_runs(
         for row in result["families"].to_dict(orient="records"):
             if row["family"] == "all":
                 echo(
-                    f"{run_dir}: {row['robots_per_room']} robot(s) per room: success {row['success']:.3f} "
+                    f"{run_name(run_dir)}: {row['robots_per_room']} robot(s) per room: success {row['success']:.3f} "
                     f"[{row['ci_rooms_low']:.3f}, {row['ci_rooms_high']:.3f}], worst10 {row['worst10']:.3f}, "
                     f"obstacle {row['collision']:.3f}, robot-robot {row['robot_collision']:.3f}, "
                     f"time-out {row['timeout']:.3f}, deadlock {row['deadlock']:.3f}"

@@ -54,6 +54,7 @@ from fedjax_nav.evaluation.rollout import (
     eval_program,
     observed_program,
 )
+from fedjax_nav.evaluation.run_data import run_name
 from fedjax_nav.evaluation.runs import RunAgents, load_run, run_policy
 from fedjax_nav.evaluation.suite_files import is_file_suite, suite_folder, suite_world, world_files
 from fedjax_nav.evaluation.suite_stats import TAIL, family_row
@@ -347,7 +348,7 @@ def evaluate_suite_runs(
         paths = write_suite(res, dest)
         s = res["summary"]
         echo(
-            f"{s['method']} ({run_dir}) on suite '{suite}': {s['rooms']} rooms, {s['episodes']} episodes, "
+            f"{s['method']} ({run_name(run_dir)}) on suite '{suite}': {s['rooms']} rooms, {s['episodes']} episodes, "
             f"{s['wall_s']:.1f} s"
         )
         echo(
@@ -370,5 +371,5 @@ def evaluate_suite_runs(
         echo("wrote " + ", ".join(str(p) for p in paths))
         if then is not None:
             then(run_dir, dest)
-        results[str(run_dir)] = s
+        results[run_name(run_dir)] = s
     return results
