@@ -125,14 +125,17 @@ def _flat_shapes(tree) -> dict[str, tuple]:
     }
 
 
-def load_run(run_dir: str | Path) -> RunAgents:
+def load_run(run_dir: str | Path | RunAgents) -> RunAgents:
     """Read config.yaml and params.npz (actor leaves [seed, net, ...]) of a training run, through
-    fedjax_nav.rundir; any problem is an EvalError naming the file."""
+    fedjax_nav.rundir; any problem is an EvalError naming the file. A RunAgents passes through as
+    it is (a run under changed values, `fedjax-nav evaluate --set`)."""
     from fedjax_nav import methods
     from fedjax_nav.config import ConfigError
     from fedjax_nav.env import NavEnv as _Env
     from fedjax_nav.learner_table import get as learner_row
 
+    if isinstance(run_dir, RunAgents):
+        return run_dir
     try:
         run_dir = rundir.run_dir(run_dir, (rundir.CONFIG, rundir.PARAMS))
         cfg = rundir.read_config(run_dir)
@@ -229,7 +232,7 @@ def evaluate_run(
     an EvalError naming --attempts and --max-steps, before anything is allocated (`check_run_memory`).
     """
     check_counts(attempts, max_steps)
-    run = run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir)
+    run = load_run(run_dir)
     cfg = run.cfg
     robot = cfg.robot if robot is None else robot
     under = dataclasses.replace(cfg, robot=robot)  # the run under the robot it is evaluated with
@@ -351,7 +354,7 @@ def evaluate_runs(
     for flag, std in (("--range-noise", range_noise), ("--action-noise", action_noise)):
         if not 0 <= std < float("inf"):  # NaN fails too
             raise EvalError(f"{flag}: the noise std must be finite and >= 0, got {std}")
-    runs = [d if isinstance(d, RunAgents) else load_run(d) for d in run_dirs]  # RunAgents: `evaluate --set`
+    runs = [load_run(d) for d in run_dirs]
     w, _ = _worlds.load_with_meta(world)  # a bad world (WorldError) fails before any compilation
     for run in runs:
         check_run_memory(run, w, attempts, max_steps, robot, memory_budget)

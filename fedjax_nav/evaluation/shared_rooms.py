@@ -37,7 +37,7 @@ from fedjax_nav.env.shared import fixed_fleet, fleet_others, place_fleet
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.evaluation.policies import as_memory_policy
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
-from fedjax_nav.evaluation.run_data import RunAgents, run_name
+from fedjax_nav.evaluation.run_data import run_name
 from fedjax_nav.evaluation.runs import load_run, run_policy
 from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
 from fedjax_nav.evaluation.suite_stats import bootstrap_ci, worst_mean
@@ -164,7 +164,7 @@ def shared_protocol(run_dir, suite, world, attempts, ks, range_noise, action_noi
     """`run_dir`: a run's folder, or its `RunAgents` (a run under changed values, a scripted
     baseline's: as `evaluate_suite` takes)."""
     world_rows, families, room_seeds, fixed = rooms_of(suite, world, attempts, ks)
-    run = run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir)
+    run = load_run(run_dir)
     T = int(max_steps or run.cfg.env.episode_length)
     values = envs.eval_values(run.cfg, range_noise, action_noise)
     settings = tuple(sorted(envs.env_settings(run.cfg, "eval", noise=True, episode_length=T).items()))

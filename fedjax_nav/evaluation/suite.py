@@ -185,7 +185,7 @@ def evaluate_suite(
     rollout runs."""
     check_counts(attempts, max_steps)
     members = _check_suite(suite)
-    run = under_robot(run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir), robot)
+    run = under_robot(load_run(run_dir), robot)
     cfg, e = run.cfg, run.cfg.env
     world, families, room_seeds = suite_world(suite)
     R, G = world.goals.shape[:2]

@@ -26,7 +26,6 @@ import pandas as pd
 from fedjax_nav import rundir
 from fedjax_nav.evaluation import figures
 from fedjax_nav.evaluation.limits import EvalError, check_counts
-from fedjax_nav.evaluation.run_data import RunAgents
 from fedjax_nav.evaluation.runs import load_run
 from fedjax_nav.evaluation.suite import suite_protocol, under_robot
 from fedjax_nav.evaluation.suite_files import suite_folder, suite_world
@@ -116,7 +115,7 @@ def replay(
     if not (isinstance(rooms, (int, np.integer)) and rooms >= 1):
         raise EvalError(f"rooms: must be an integer >= 1, got {rooms!r}")
     folder, s, episodes = kept_evaluation(run_dir, suite, folder)
-    run = run_dir if isinstance(run_dir, RunAgents) else load_run(run_dir)  # (`fedjax-nav evaluate --set`)
+    run = load_run(run_dir)
     run = under_robot(run, s.get("robot"))  # the robot the evaluation drove
     try:
         world, _, _ = suite_world(suite)
