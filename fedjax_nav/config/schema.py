@@ -158,6 +158,14 @@ class EnvConfig:
     robot_clearance: float = _f(
         0.3, lo=0.0, hi=1e4, traced=True, doc="shared rooms: m between two robots' discs env.reward_robot_near pays"
     )
+    give_way: float = _f(
+        0.0,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="shared rooms: m between two robots' discs within which a robot does not drive nearer to another: "
+        "its forward speed is 0 for that step (0 = off; docs/shared_rooms.md, 'Giving way')",
+    )
     # A global plan on the known map (docs/planning.md). The default gives today's mapless runs.
     plan: bool = _f(
         False,

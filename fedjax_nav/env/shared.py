@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from fedjax_nav import worlds
 from fedjax_nav.env.geometry import nearest_distance
 from fedjax_nav.env.gym_task import MIN_START_GOAL, PLACEMENT_MARGIN
+from fedjax_nav.env.robot import unicycle
 from fedjax_nav.worlds import World
 
 FLEET_TRIES = 256  # candidates per room, shared by its robots' starts and goals
@@ -45,6 +46,31 @@ def fleet_others(poses: jax.Array, radius: jax.Array, present: jax.Array, per: i
     rad = radius.reshape(n, per).T
     out = jax.vmap(others, in_axes=(0, 0, None))(xy, rad, present)  # [per, R, R, 3]
     return out.swapaxes(0, 1).reshape(n * per, n, 3)
+
+
+def give_way(pose: jax.Array, action: jax.Array, others: jax.Array, radius: jax.Array, params) -> jax.Array:
+    """`action` (v / v_max, omega / omega_max), or (0, -1) when the step it commands (the
+    unicycle at the nominal speeds) would bring the robot's disc nearer than `params.give_way`
+    to another robot's and nearer than it is now (docs/shared_rooms.md, "Giving way"): the
+    robot stops and turns right in place, as the traffic rule of `plan.keep_right` has it, and
+    drives on once its step no longer closes on the other. Unchanged, bitwise, when give_way is
+    0 or no robot is that near. `others`: f32[K, 3], the other robots
+    as circles where they are before this step (r = 0: none)."""
+    a = jnp.clip(action, jnp.array([0.0, -1.0]), 1.0)
+    ahead = unicycle(pose, a[0] * params.v_max, a[1] * params.omega_max, params.dt)
+    gap = lambda p: jnp.linalg.norm(others[:, :2] - p[:2], axis=-1) - others[:, 2] - radius  # noqa: E731
+    now, then = gap(pose), gap(ahead)
+    nearer = (others[:, 2] > 0) & (then < params.give_way) & (then < now)
+    return jnp.where((params.give_way > 0) & jnp.any(nearer), jnp.array([0.0, -1.0], action.dtype), action)
+
+
+def fleet_move(env, keys, states, actions, params, present, per: int):
+    """`jax.vmap(env.move)` in shared rooms (robot-major, `per` rooms): each robot gives way
+    (`give_way`) to the others where they are before the move. `present`: bool[robots]."""
+    radius = jax.vmap(env.radius)(params)
+    before = fleet_others(states.pose, radius, present, per)
+    actions = jax.vmap(give_way)(states.pose, actions, before, radius, params)
+    return jax.vmap(env.move)(keys, states, actions, params)
 
 
 def own(world: World, start: jax.Array, goal: jax.Array) -> World:
@@ -101,13 +127,14 @@ def place_fleet(world: World, key: jax.Array, robots: int, keep_first: bool = Fa
 
 def fleet_step(env, present, per: int):
     """`jax.vmap(env.step)` for shared rooms: (keys, states, actions, params) of every
-    environment, robot-major -> every environment's step. Each robot moves, the reached poses
-    are gathered once (`fleet_others`), each settles seeing the others where they are now.
+    environment, robot-major -> every environment's step. Each robot moves (giving way,
+    `fleet_move`), the reached poses are gathered once (`fleet_others`), each settles seeing the
+    others where they are now.
     `present`: bool[robots], False for a mesh's padding clients (alone: they see no robot, none sees them)."""
     present = jnp.asarray(present)
 
     def step(keys, states, actions, params):
-        moved = jax.vmap(env.move)(keys, states, actions, params)
+        moved = fleet_move(env, keys, states, actions, params, present, per)
         around = fleet_others(moved.pose, jax.vmap(env.radius)(params), present, per)
         return jax.vmap(env.settle)(keys, states, moved, params, around)
 

@@ -33,7 +33,7 @@ from fedjax_nav import rundir
 from fedjax_nav import worlds as _worlds
 from fedjax_nav.config import envs
 from fedjax_nav.env.nav import NavEnv, make_params
-from fedjax_nav.env.shared import fixed_fleet, fleet_others, place_fleet
+from fedjax_nav.env.shared import fixed_fleet, fleet_move, fleet_others, place_fleet
 from fedjax_nav.evaluation.limits import EvalError
 from fedjax_nav.evaluation.policies import as_memory_policy
 from fedjax_nav.evaluation.rollout import ACTION_NOISE, RANGE_NOISE
@@ -72,7 +72,7 @@ def fleet_program(settings: tuple, policy, k: int, trajectories: bool = False, f
             states, obs, memory, first, f, steps = carry
             act, memory = jax.vmap(pol.step, in_axes=(None, 0, 0, 0))(actor, obs, memory, first)
             ks = jax.random.split(key_t, k)
-            moved = jax.vmap(env.move)(ks, states, act, params)
+            moved = fleet_move(env, ks, states, act, params, ~f["done"], 1)
             around = fleet_others(moved.pose, jax.vmap(env.radius)(params), ~f["done"], 1)
             obs2, states2, _, term, trunc, info = jax.vmap(env.settle)(ks, states, moved, params, around)
             live = ~f["done"]
