@@ -6,8 +6,10 @@ behind), how fast each drove over the last second, and for how many steps the ot
 within 1 m before the contact, and the room the two had to pass (the contact midpoint's distance
 to the nearest wall or obstacle: under 2 D_c two discs cannot stand abreast there). Writes
 `contacts.csv` (one row per robot-robot collision), `contacts.json` (the shares) and
-`contacts.png` (the last 6 s of the first contacts). With --collect, the table of several such
-folders (one row each) instead.
+`contacts.png` (the last 6 s of the first contacts). The obstacle contacts too, one row each in
+`obstacles.csv`: how near the nearest other robot was, and whether the robot had given way
+(stood and turned right at full rate, `env.give_way`) within the last 3 s. With --collect, the
+table of several such folders (one row each) instead.
 
     python scripts/robot_contacts.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 \
         --set env.plan_cells=128 --suite mixture-50 --robots-per-room 4 --out runs/x/contacts
@@ -35,6 +37,7 @@ STILL = 0.02  # m/s: a robot slower than this over the window stood still
 # The room to pass: two robots abreast, each D_c from the walls and 2 D_c apart, need a way 4 D_c
 # wide, a midpoint at least 2 D_c from the nearest wall when centred (worlds.CLEARANCE = D_c).
 ABREAST = 2.0
+GAVE_WAY_WINDOW = 30  # steps (3 s) before an obstacle contact searched for a give-way step
 
 
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
@@ -82,6 +85,38 @@ def contacts(poses: np.ndarray, steps: np.ndarray, robot_collision: np.ndarray, 
             }
         )
     return pd.DataFrame(rows)
+
+
+def wall_contacts(poses: np.ndarray, steps: np.ndarray, collision: np.ndarray, turn: float) -> pd.DataFrame:
+    """One row per robot whose episode ended in an obstacle collision, for one room's fleet (as
+    `contacts`): `other_distance`, m between its centre and the nearest other robot's still in
+    the room (inf: none), and `gave_way_steps`, its steps within the last GAVE_WAY_WINDOW in which
+    it stood still and turned right by at least 0.9 `turn` (omega_max dt: the move of
+    `env.give_way`)."""
+    rows = []
+    k = poses.shape[1]
+    for i in np.flatnonzero(collision):
+        s = int(steps[i])
+        live = [j for j in range(k) if j != i and steps[j] >= s]
+        d = np.linalg.norm(poses[s, live, :2] - poses[s, i, :2], axis=-1) if live else np.array([np.inf])
+        seg = poses[max(s - GAVE_WAY_WINDOW, 0) : s + 1, i]
+        stood = np.linalg.norm(np.diff(seg[:, :2], axis=0), axis=-1) < 1e-4
+        right = wrap_angle(np.diff(seg[:, 2])) < -0.9 * turn
+        rows.append(
+            {"robot": int(i), "step": s, "other_distance": float(d.min()), "gave_way_steps": int((stood & right).sum())}
+        )
+    return pd.DataFrame(rows, columns=["robot", "step", "other_distance", "gave_way_steps"])
+
+
+def wall_shares(df: pd.DataFrame) -> dict:
+    """The obstacle contacts' count, the share with another robot within NEAR, the share after giving way."""
+    if df.empty:
+        return {"obstacle_contacts": 0}
+    return {
+        "obstacle_contacts": len(df),
+        "obstacle_other_near": round(float((df.other_distance < NEAR).mean()), 3),
+        "obstacle_after_giving_way": round(float((df.gave_way_steps > 0).mean()), 3),
+    }
 
 
 def room_to_pass(df: pd.DataFrame, poses: np.ndarray, world) -> pd.DataFrame:
@@ -165,6 +200,11 @@ def table(folders: dict) -> pd.DataFrame:
                 "speed_median": s.get("speed_median", 0.0),
                 "near_steps_median": s.get("near_steps_median", 0.0),
                 "narrow": s.get("narrow", float("nan")),  # folders written before the measure: NaN
+                "obstacle": round(s["obstacle_contacts"] / s["robot_episodes"], 3)
+                if "obstacle_contacts" in s
+                else np.nan,
+                "obstacle_other_near": s.get("obstacle_other_near", float("nan")),
+                "obstacle_after_giving_way": s.get("obstacle_after_giving_way", float("nan")),
             }
         )
     return pd.DataFrame(rows)
@@ -222,19 +262,23 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     res = jax.device_get(pr.program(k, trajectories=True)(run.actor_params, pr.rooms, pr.keys(0, k)))
-    frames, panels = [], []
+    frames, walls, panels = [], [], []
     R, A = res["steps"].shape[:2]
+    turn = float(cfg.env.omega_max * cfg.env.dt)
     for r in range(R):
         for g in range(A):
-            poses = res["poses"][r, g]
-            df = contacts(poses, res["steps"][r, g], res["robot_collision"][r, g], float(cfg.env.dt))
+            poses, steps = res["poses"][r, g], res["steps"][r, g]
+            df = contacts(poses, steps, res["robot_collision"][r, g], float(cfg.env.dt))
             frames.append(df.assign(room=r, family=pr.families[r], agent=g))
+            walls.append(wall_contacts(poses, steps, res["collision"][r, g], turn).assign(room=r, agent=g))
             panels += [(row, poses) for _, row in df.iterrows() if row.robot < row.other][: 8 - len(panels)]
     df = room_to_pass(pd.concat(frames, ignore_index=True), res["poses"], pr.world)
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "contacts.csv", index=False)
+    obstacles = pd.concat(walls, ignore_index=True)
+    obstacles.to_csv(out / "obstacles.csv", index=False)
     summary = {"run": str(a.run), "suite": a.suite, "robots_per_room": k, "robot_episodes": int(R * A * k)}
-    summary |= shares(df)
+    summary |= shares(df) | wall_shares(obstacles)
     (out / "contacts.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))
     if panels:

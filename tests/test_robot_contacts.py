@@ -108,6 +108,8 @@ def test_the_scripts_contacts_are_the_robot_robot_collisions_of_the_evaluation(t
     key = ["room", "robot"]
     want = ep[ep.robot_collision == 1].sort_values(["room", "net", "robot"])
     assert got.sort_values(["room", "agent", "robot"])[key].values.tolist() == want[key].values.tolist()
+    walls = pd.read_csv(tmp_path / "c" / "obstacles.csv")
+    assert len(walls) == ep.collision.sum()  # every obstacle contact, one row each
     assert robot_contacts.main(argv) == 2  # kept, not overwritten
 
 
@@ -134,3 +136,24 @@ def test_the_room_to_pass_is_the_midpoints_distance_to_the_nearest_wall():
     assert df.wall_clearance.to_numpy() == pytest.approx([0.4] * 2 + [1.5] * 2, abs=1e-5)
     assert df.narrow.tolist() == [True, True, False, False]
     assert robot_contacts.shares(df)["narrow"] == 0.5
+
+
+def test_an_obstacle_contact_after_giving_way_near_another_robot_is_counted_as_such():
+    # robot 0 stands 0.55 m from robot 1 and turns right at full rate for 5 steps (omega_max dt =
+    # 0.1 rad), then drives 10 steps and touches a wall; robot 2 drives alone and touches one too
+    turn, still = 0.1, np.array([[0.0, 0.0, -0.1 * t] for t in range(6)])
+    drive = straight(still[-1, :2], still[-1, 2], V, 10)[1:]
+    a = np.concatenate([still, drive])  # [16, 3]
+    b = np.tile([0.55, 0.0, np.pi], (16, 1))
+    c = straight((5.0, 5.0), 0.0, V, 15)
+    poses = np.stack([a, b, c], axis=1)
+    steps = np.array([15, 15, 15])
+    df = robot_contacts.wall_contacts(poses, steps, np.array([True, False, True]), turn)
+    assert df.robot.tolist() == [0, 2]
+    assert df.gave_way_steps.tolist() == [5, 0]
+    assert df.other_distance[0] == pytest.approx(np.linalg.norm(a[15, :2] - b[15, :2]))
+    assert df.other_distance[1] == pytest.approx(np.linalg.norm(c[15, :2] - b[15, :2]))
+    gone = robot_contacts.wall_contacts(poses, np.array([15, 3, 4]), np.array([True, False, False]), turn)
+    assert gone.other_distance.tolist() == [np.inf]  # the others left the room at steps 3 and 4
+    shares = robot_contacts.wall_shares(df)
+    assert shares["obstacle_contacts"] == 2 and shares["obstacle_after_giving_way"] == 0.5
