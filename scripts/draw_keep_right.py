@@ -1,9 +1,11 @@
-"""What keeping right does (docs/shared_rooms.md, "Keeping right"): success and robot-robot
-collisions against K robots per room for each fleet of a `scripts/shared_report.py --csv` table,
-each fleet without the rule (solid) and with it (dashed: the label with ", keeping right"; a
-fleet trained with it: dotted), the bars the 95% interval over the training seeds.
+"""What the traffic rules do (docs/shared_rooms.md, "Keeping right", "Giving way"): success and
+robot-robot collisions against K robots per room for each fleet of a `scripts/shared_report.py
+--csv` table, each fleet without a rule (solid) and under each rule its label's ending names
+(RULES: ", keeping right" dashed; ", trained keeping right" dotted; ", keeping right and giving
+way" dash-dotted), the bars the 95% interval over the training seeds.
 
     python scripts/draw_keep_right.py results/plan_keep_right.csv --out docs/img/shared_rooms/keep_right.png
+    python scripts/draw_keep_right.py results/plan_give_way.csv --out docs/img/shared_rooms/give_way.png
 """
 
 from __future__ import annotations
@@ -11,22 +13,24 @@ from __future__ import annotations
 import argparse
 import sys
 
-RULE = ", keeping right"
+# label ending -> (style, line): the first that ends a label names its rule; none: "without"
+RULES = {
+    ", keeping right and giving way": ("giving way", "-."),
+    ", trained keeping right": ("trained", ":"),
+    ", keeping right": ("with", "--"),
+}
+LINES = {"without": "-"} | {style: line for style, line in RULES.values()}
 
 
 def series(df) -> dict:
-    """{fleet: {style: rows over K}} from the table's 'all' rows: style "without", "with" (the
-    label ends in RULE) or "trained" (the label holds "trained keeping right")."""
+    """{fleet: {style: rows over K}} from the table's 'all' rows: style "without", or that of the
+    RULES ending its label (the fleet: the label without it)."""
     rows = df[df.family == "all"].sort_values("robots_per_room")
     out: dict = {}
     for label, g in rows.groupby("label", sort=False):
-        if "trained keeping right" in label:
-            fleet, style = label.replace(", trained keeping right", ""), "trained"
-        elif label.endswith(RULE):
-            fleet, style = label[: -len(RULE)], "with"
-        else:
-            fleet, style = label, "without"
-        out.setdefault(fleet, {})[style] = g
+        end = next((e for e in RULES if label.endswith(e)), "")
+        style = RULES[end][0] if end else "without"
+        out.setdefault(label[: len(label) - len(end)], {})[style] = g
     return out
 
 
@@ -35,14 +39,15 @@ def draw(df, out: str) -> str:
 
     fig = Figure(figsize=(11, 4.2), layout="constrained")
     ax_s, ax_r = fig.subplots(1, 2)
-    styles = {"without": "-", "with": "--", "trained": ":"}
+    names = {style: end for end, (style, _) in RULES.items()} | {"without": ""}
     for n, (fleet, parts) in enumerate(series(df).items()):
         for style, g in parts.items():
             k = g.robots_per_room.to_numpy()
             err = [g.success - g.ci_seeds_low, g.ci_seeds_high - g.success]
-            name = fleet if style == "without" else f"{fleet}, {'trained ' if style == 'trained' else ''}keeping right"
-            ax_s.errorbar(k, g.success, yerr=err, ls=styles[style], color=f"C{n}", marker="o", ms=3, capsize=2)
-            ax_r.plot(k, g.robot_collision, ls=styles[style], color=f"C{n}", marker="o", ms=3, label=name)
+            ax_s.errorbar(k, g.success, yerr=err, ls=LINES[style], color=f"C{n}", marker="o", ms=3, capsize=2)
+            ax_r.plot(
+                k, g.robot_collision, ls=LINES[style], color=f"C{n}", marker="o", ms=3, label=fleet + names[style]
+            )
     for ax, what in ((ax_s, "success"), (ax_r, "robot-robot collisions per robot-episode")):
         ax.set_xscale("log", base=2)
         ax.set_xticks([1, 2, 4, 8], ["1", "2", "4", "8"])
@@ -52,7 +57,9 @@ def draw(df, out: str) -> str:
     ax_s.axhline(0.92, color="k", lw=0.8, ls="-.")
     ax_s.text(5.0, 0.93, "goal at K = 4: 0.92", fontsize=8)
     ax_r.legend(fontsize=7, loc="upper left")
-    fig.suptitle("held-out mixture rooms, 2 seeds: without the rule (solid), keeping right 0.45 m (dashed)")
+    drawn = {style for parts in series(df).values() for style in parts}
+    key = ", ".join(f"{end[2:]} ({LINES[style]})" for end, (style, _) in RULES.items() if style in drawn)
+    fig.suptitle(f"held-out mixture rooms, 2 seeds: without a rule (-), {key}")
     fig.savefig(out, dpi=100)
     return out
 

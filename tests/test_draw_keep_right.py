@@ -1,5 +1,6 @@
-"""scripts/draw_keep_right.py (docs/shared_rooms.md, "Keeping right"): a shared_report table's
-fleets split by the rule, drawn; a table that is not one is refused in one line."""
+"""scripts/draw_keep_right.py (docs/shared_rooms.md, "Keeping right", "Giving way"): a
+shared_report table's fleets split by the rule their labels end in, drawn; a table that is not
+one is refused in one line."""
 
 import importlib.util
 from pathlib import Path
@@ -14,7 +15,8 @@ spec.loader.exec_module(draw_keep_right)
 
 def table() -> pd.DataFrame:
     rows = []
-    for label, s in (("central", 0.6), ("central, keeping right", 0.8), ("central, trained keeping right", 0.81)):
+    fleets = ("central", 0.6), ("central, keeping right", 0.8), ("central, trained keeping right", 0.81)
+    for label, s in fleets + (("central, keeping right and giving way", 0.9),):
         for k in (1, 2, 4, 8):
             for fam in ("mixture", "all"):
                 rows.append(
@@ -26,7 +28,7 @@ def table() -> pd.DataFrame:
 
 def test_the_fleets_are_split_by_the_rule_and_drawn(tmp_path, capsys):
     parts = draw_keep_right.series(table())
-    assert list(parts) == ["central"] and set(parts["central"]) == {"without", "with", "trained"}
+    assert list(parts) == ["central"] and set(parts["central"]) == {"without", "with", "trained", "giving way"}
     assert parts["central"]["with"].robots_per_room.tolist() == [1, 2, 4, 8]  # the 'all' rows only
     csv = tmp_path / "t.csv"
     table().to_csv(csv, index=False)
