@@ -5,7 +5,8 @@ robot-robot collisions against K robots per room for each fleet of a `scripts/sh
 way" dash-dotted), the bars the 95% interval over the training seeds.
 
     python scripts/draw_keep_right.py results/plan_keep_right.csv --out docs/img/shared_rooms/keep_right.png
-    python scripts/draw_keep_right.py results/plan_give_way.csv --out docs/img/shared_rooms/give_way.png
+    python scripts/draw_keep_right.py results/plan_give_way.csv --out docs/img/shared_rooms/give_way.png \
+        --fleet "central, 3.0e7" --fleet "central, 1.0e8" --fleet "federated, 1.0e7"
 """
 
 from __future__ import annotations
@@ -34,13 +35,14 @@ def series(df) -> dict:
     return out
 
 
-def draw(df, out: str) -> str:
+def draw(df, out: str, fleets=None) -> str:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(11, 4.2), layout="constrained")
     ax_s, ax_r = fig.subplots(1, 2)
     names = {style: end for end, (style, _) in RULES.items()} | {"without": ""}
-    for n, (fleet, parts) in enumerate(series(df).items()):
+    drawn = {f: parts for f, parts in series(df).items() if not fleets or f in fleets}
+    for n, (fleet, parts) in enumerate(drawn.items()):
         for style, g in parts.items():
             k = g.robots_per_room.to_numpy()
             err = [g.success - g.ci_seeds_low, g.ci_seeds_high - g.success]
@@ -57,8 +59,8 @@ def draw(df, out: str) -> str:
     ax_s.axhline(0.92, color="k", lw=0.8, ls="-.")
     ax_s.text(5.0, 0.93, "goal at K = 4: 0.92", fontsize=8)
     ax_r.legend(fontsize=7, loc="upper left")
-    drawn = {style for parts in series(df).values() for style in parts}
-    key = ", ".join(f"{end[2:]} ({LINES[style]})" for end, (style, _) in RULES.items() if style in drawn)
+    styles = {style for parts in drawn.values() for style in parts}
+    key = ", ".join(f"{end[2:]} ({LINES[style]})" for end, (style, _) in RULES.items() if style in styles)
     fig.suptitle(f"held-out mixture rooms, 2 seeds: without a rule (-), {key}")
     fig.savefig(out, dpi=100)
     return out
@@ -68,6 +70,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("csv", help="a table written by scripts/shared_report.py --csv")
     ap.add_argument("--out", required=True, help="the PNG")
+    ap.add_argument("--fleet", action="append", default=[], help="draw only this fleet (its label without a rule)")
     a = ap.parse_args(argv)
     import pandas as pd
 
@@ -76,7 +79,11 @@ def main(argv=None) -> int:
     if missing:
         print(f"error: {a.csv}: not a shared_report.py table (no column {sorted(missing)[0]!r})", file=sys.stderr)
         return 2
-    print("wrote", draw(df, a.out))
+    unknown = sorted(set(a.fleet) - set(series(df)))
+    if unknown:
+        print(f"error: --fleet {unknown[0]!r}: no such fleet in {a.csv} (it has {sorted(series(df))})", file=sys.stderr)
+        return 2
+    print("wrote", draw(df, a.out, a.fleet))
     return 0
 
 

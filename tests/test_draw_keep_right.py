@@ -34,6 +34,9 @@ def test_the_fleets_are_split_by_the_rule_and_drawn(tmp_path, capsys):
     table().to_csv(csv, index=False)
     assert draw_keep_right.main([str(csv), "--out", str(tmp_path / "k.png")]) == 0
     assert (tmp_path / "k.png").stat().st_size > 10_000
+    assert draw_keep_right.main([str(csv), "--out", str(tmp_path / "c.png"), "--fleet", "central"]) == 0
+    assert draw_keep_right.main([str(csv), "--out", str(tmp_path / "d.png"), "--fleet", "centrall"]) == 2
+    assert "'centrall'" in capsys.readouterr().err
     table().drop(columns="ci_seeds_low").to_csv(csv, index=False)
     assert draw_keep_right.main([str(csv), "--out", str(tmp_path / "b.png")]) == 2
     assert "ci_seeds_low" in capsys.readouterr().err
