@@ -14,11 +14,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-# label ending -> (style, line): the first that ends a label names its rule; none: "without"
+# label ending -> (style, line): the one that ends a label names its rule (no ending is another's); none: "without"
 RULES = {
-    ", keeping right and giving way": ("giving way", "-."),
-    ", trained keeping right": ("trained", ":"),
     ", keeping right": ("with", "--"),
+    ", trained keeping right": ("trained", ":"),
+    ", keeping right and giving way": ("giving way", "-."),
 }
 LINES = {"without": "-"} | {style: line for style, line in RULES.values()}
 
@@ -43,7 +43,7 @@ def draw(df, out: str, fleets=None) -> str:
     names = {style: end for end, (style, _) in RULES.items()} | {"without": ""}
     drawn = {f: parts for f, parts in series(df).items() if not fleets or f in fleets}
     for n, (fleet, parts) in enumerate(drawn.items()):
-        for style, g in parts.items():
+        for style, g in sorted(parts.items(), key=lambda p: list(LINES).index(p[0])):  # legend: without first
             k = g.robots_per_room.to_numpy()
             err = [g.success - g.ci_seeds_low, g.ci_seeds_high - g.success]
             ax_s.errorbar(k, g.success, yerr=err, ls=LINES[style], color=f"C{n}", marker="o", ms=3, capsize=2)

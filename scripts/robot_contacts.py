@@ -188,17 +188,18 @@ def table(folders: dict) -> pd.DataFrame:
     for label, folder in folders.items():
         s = json.loads((Path(folder) / "contacts.json").read_text())
         kind, where = s.get("kind", {}), s.get("where", {})
+        zero = 0.0 if s["contacts"] else float("nan")  # the shares of no contacts: none
         rows.append(
             {
                 "policy": label,
                 "robots_per_room": s["robots_per_room"],
                 "robot_episodes": s["robot_episodes"],
                 "robot_robot": round(s["contacts"] / s["robot_episodes"], 3),
-                **{f"other_{w.replace(' ', '_')}": where.get(w, 0.0) for _, w in BEARINGS},
-                **{k.replace(" ", "_").replace("-", "_"): kind.get(k, 0.0) for _, k in HEADINGS},
-                "one_stood_still": s.get("one_stood_still", 0.0),
-                "speed_median": s.get("speed_median", 0.0),
-                "near_steps_median": s.get("near_steps_median", 0.0),
+                **{f"other_{w.replace(' ', '_')}": where.get(w, zero) for _, w in BEARINGS},
+                **{k.replace(" ", "_").replace("-", "_"): kind.get(k, zero) for _, k in HEADINGS},
+                "one_stood_still": s.get("one_stood_still", zero),
+                "speed_median": s.get("speed_median", zero),
+                "near_steps_median": s.get("near_steps_median", zero),
                 "narrow": s.get("narrow", float("nan")),  # folders written before the measure: NaN
                 "obstacle": round(s["obstacle_contacts"] / s["robot_episodes"], 3)
                 if "obstacle_contacts" in s

@@ -79,6 +79,12 @@ def test_collect_tabulates_the_folders_and_refuses_one_the_script_did_not_write(
     assert robot_contacts.main(["--collect", f"A={tmp_path / 'a'}", "--csv", str(csv)]) == 0
     row = __import__("pandas").read_csv(csv).iloc[0]
     assert row.policy == "A" and row.robot_robot == 0.25 and row.head_on == 1.0 and row.other_in_front == 1.0
+    (tmp_path / "z").mkdir()  # a fleet without contacts: its shares are none, not 0
+    zero = {"robots_per_room": 2, "robot_episodes": 8} | robot_contacts.shares(df.iloc[:0])
+    (tmp_path / "z" / "contacts.json").write_text(__import__("json").dumps(zero))
+    assert robot_contacts.main(["--collect", f"Z={tmp_path / 'z'}", "--csv", str(csv)]) == 0
+    row = __import__("pandas").read_csv(csv).iloc[0]
+    assert row.robot_robot == 0.0 and np.isnan(row.head_on) and np.isnan(row.speed_median)
     assert robot_contacts.main(["--collect", f"B={tmp_path / 'none'}"]) == 2
     assert "LABEL=FOLDER" in capsys.readouterr().err
 
