@@ -49,15 +49,19 @@ def _bin(value: float, bins) -> str:
     return next(name for hi, name in bins if value <= hi + 1e-9)
 
 
+def _still_in_room(steps: np.ndarray, i: int, s: int) -> list[int]:
+    """The robots other than `i` whose episodes had not ended before step `s`."""
+    return [j for j in range(len(steps)) if j != i and steps[j] >= s]
+
+
 def contacts(poses: np.ndarray, steps: np.ndarray, robot_collision: np.ndarray, dt: float) -> pd.DataFrame:
     """One row per robot whose episode ended in a robot-robot collision, for one room's fleet:
     `poses` [T + 1, k, 3] (poses[t] after step t), `steps` [k] (a robot's last step), `robot_collision`
     bool [k]. The partner is the nearest robot still in the room at that step."""
     rows = []
-    k = poses.shape[1]
     for i in np.flatnonzero(robot_collision):
         s = int(steps[i])
-        live = [j for j in range(k) if j != i and steps[j] >= s]
+        live = _still_in_room(steps, i, s)
         if not live:  # cannot happen: a contact needs another robot in the room
             continue
         d = np.linalg.norm(poses[s, live, :2] - poses[s, i, :2], axis=-1)
@@ -94,10 +98,9 @@ def wall_contacts(poses: np.ndarray, steps: np.ndarray, collision: np.ndarray, t
     it stood still and turned right by at least 0.9 `turn` (omega_max dt: the move of
     `env.give_way`)."""
     rows = []
-    k = poses.shape[1]
     for i in np.flatnonzero(collision):
         s = int(steps[i])
-        live = [j for j in range(k) if j != i and steps[j] >= s]
+        live = _still_in_room(steps, i, s)
         d = np.linalg.norm(poses[s, live, :2] - poses[s, i, :2], axis=-1) if live else np.array([np.inf])
         seg = poses[max(s - GAVE_WAY_WINDOW, 0) : s + 1, i]
         stood = np.linalg.norm(np.diff(seg[:, :2], axis=0), axis=-1) < 1e-4

@@ -47,7 +47,7 @@ class EnvParams:
     reward_robot_near: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # per step
     robot_clearance: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.3))  # m between two discs
     # Shared rooms (docs/shared_rooms.md, "Giving way"): m between two robots' discs within which a
-    # robot's forward speed is 0 when driving on would bring it nearer to another. 0 = off.
+    # robot stops and turns right in place when driving on would bring it nearer to another. 0 = off.
     give_way: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m between two discs
     # Shared rooms with NavEnv(plan=True) (docs/shared_rooms.md, "Keeping right"): m the waypoint moves
     # to the right while another robot's centre is within plan_keep_right_reach and ahead. 0 = off.

@@ -54,8 +54,8 @@ def give_way(pose: jax.Array, action: jax.Array, others: jax.Array, radius: jax.
     to another robot's and nearer than it is now (docs/shared_rooms.md, "Giving way"): the
     robot stops and turns right in place, as the traffic rule of `plan.keep_right` has it, and
     drives on once its step no longer closes on the other. Unchanged, bitwise, when give_way is
-    0 or no robot is that near. `others`: f32[K, 3], the other robots
-    as circles where they are before this step (r = 0: none)."""
+    0 or no robot is that near. `others`: f32[K, 3], the other robots as circles where they are
+    before this step (r = 0: none)."""
     a = jnp.clip(action, jnp.array([0.0, -1.0]), 1.0)
     ahead = unicycle(pose, a[0] * params.v_max, a[1] * params.omega_max, params.dt)
     gap = lambda p: jnp.linalg.norm(others[:, :2] - p[:2], axis=-1) - others[:, 2] - radius  # noqa: E731
