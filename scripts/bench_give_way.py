@@ -1,8 +1,8 @@
 """What giving way costs (docs/shared_rooms.md, "Speed"): env-only agent-steps/s of the shared-room
-step as it was before the rule (`vmap(NavEnv.move)`, gather, settle) against `shared.fleet_step`
+step as it was before the rules (`vmap(NavEnv.move)`, gather, settle) against `shared.fleet_step`
 now (each robot's command checked against the others before the move, `fleet_move`), with
-`env.give_way` off and on (traced: the same program), in one run, as `fedjax-nav bench shared`
-steps them (random actions, K x rooms robots in procedural mixture rooms).
+`env.give_way` off, on, and on with `env.give_way_door` (traced: the same program), in one run,
+as `fedjax-nav bench shared` steps them (random actions, K x rooms robots in procedural mixture rooms).
 
     python scripts/bench_give_way.py --ks 4,8 --rooms 64 --steps 200 --repeats 3
 """
@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+
+# (env.give_way, env.give_way_door): off, giving way, giving way and waiting at doors
+RULES = ((0.0, 0.0), (0.05, 0.0), (0.05, 1.6))
 
 
 def rows(ks, rooms: int, steps: int, repeats: int) -> list[dict]:
@@ -38,12 +41,13 @@ def rows(ks, rooms: int, steps: int, repeats: int) -> list[dict]:
         keys = jax.random.split(jax.random.key(1), k * rooms)
         old = jax.jit(_rollout(env, before, steps))
         new = jax.jit(_rollout(env, shared.fleet_step(env, present, rooms), steps))
-        for gap in (0.0, 0.05):
-            params = make_params(placed, give_way=gap)
+        for gap, door in RULES:
+            params = make_params(placed, give_way=gap, give_way_door=door)
             for r in range(repeats):
                 t_old, t_new = _time(old, keys, params), _time(new, keys, params)
                 n = k * rooms * steps
-                out.append(dict(robots_per_room=k, give_way=gap, repeat=r, before_steps_per_s=n / t_old))
+                out.append(dict(robots_per_room=k, give_way=gap, give_way_door=door, repeat=r))
+                out[-1] |= dict(before_steps_per_s=n / t_old)
                 out[-1] |= dict(now_steps_per_s=n / t_new, cost=t_new / t_old)
     return out
 

@@ -90,5 +90,10 @@ def test_kept_evaluations_are_tabulated_per_k_and_family_their_seeds_pooled(tmp_
     assert "| 2 | plan | all | 0.375" in shared_report.markdown(df.reset_index())
     with pytest.raises(SystemExit, match="pooled twice"):
         shared_report.kept_rows([f"twice={folders[0]}+{folders[0]}"])
+    other_k = pd.read_csv(Path(folders[0]) / rundir.SHARED_EPISODES).assign(robots_per_room=4)
+    (tmp_path / "k4").mkdir()
+    other_k.to_csv(tmp_path / "k4" / rundir.SHARED_EPISODES, index=False)
+    both = shared_report.kept_rows([f"ks={folders[0]}+{tmp_path / 'k4'}"])  # one seed, K = 2 and K = 4 apart
+    assert sorted(set(both.robots_per_room)) == [2, 4]
     with pytest.raises(SystemExit, match="no kept evaluation"):
         shared_report.kept_rows([f"none={tmp_path}"])

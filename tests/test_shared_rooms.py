@@ -224,8 +224,18 @@ def test_a_shared_fleet_is_placed_together_and_meets(tmp_path):
         (["env.reward_robot_near=-0.5"], "env.reward_robot_near"),  # robots alone: never paid
         (["env.plan_keep_right=0.3"], "env.plan_keep_right"),  # robots alone: no one to keep right of
         (["env.give_way=0.05"], "env.give_way"),  # nor to give way to
+        (["env.give_way_door=1.2"], "env.give_way_door"),  # nor to wait for at a door
     ],
-    ids=["five-worlds", "one-goal", "learnability", "families", "near-alone", "keep-right-alone", "give-way-alone"],
+    ids=[
+        "five-worlds",
+        "one-goal",
+        "learnability",
+        "families",
+        "near-alone",
+        "keep-right-alone",
+        "give-way-alone",
+        "door-alone",
+    ],
 )
 def test_bad_shared_room_settings_are_one_line_naming_the_field(sets, field, tmp_path, capfd):
     argv = ["train", "--config", "thesis/flddpg", "--episodes", "2", "--out", str(tmp_path / "run")]

@@ -148,6 +148,22 @@ class EnvConfig:
         doc="shared rooms: m between two robots' discs within which a robot does not drive nearer to another: "
         "it stops and turns right in place for that step (0 = off; docs/shared_rooms.md, 'Giving way')",
     )
+    give_way_door: float = _f(
+        0.0,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="shared rooms: m across (between the walls either side) under which a place counts as a door: a "
+        "robot not in one stops while another robot in sight, ahead and within env.give_way_reach stands "
+        "in one (0 = off; docs/shared_rooms.md, 'Waiting at doors')",
+    )
+    give_way_reach: float = _f(
+        1.5,
+        lo=0.0,
+        hi=1e4,
+        traced=True,
+        doc="env.give_way_door: m between two robots' centres within which a robot waits",
+    )
     # A global plan on the known map (docs/planning.md). The default gives today's mapless runs.
     plan: bool = _f(
         False,

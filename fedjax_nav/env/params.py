@@ -49,6 +49,11 @@ class EnvParams:
     # Shared rooms (docs/shared_rooms.md, "Giving way"): m between two robots' discs within which a
     # robot stops and turns right in place when driving on would bring it nearer to another. 0 = off.
     give_way: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m between two discs
+    # Shared rooms (docs/shared_rooms.md, "Waiting at doors"): m across under which a place counts as a
+    # door; a robot not in one stops while another robot in sight, ahead and within give_way_reach of
+    # its centre stands in one. 0 = off.
+    give_way_door: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m across
+    give_way_reach: jax.Array = struct.field(default_factory=lambda: jnp.float32(1.5))  # m between centres
     # Shared rooms with NavEnv(plan=True) (docs/shared_rooms.md, "Keeping right"): m the waypoint moves
     # to the right while another robot's centre is within plan_keep_right_reach and ahead. 0 = off.
     plan_keep_right: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))  # m

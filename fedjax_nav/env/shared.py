@@ -17,11 +17,12 @@ import jax
 import jax.numpy as jnp
 
 from fedjax_nav import worlds
-from fedjax_nav.env.geometry import nearest_distance
+from fedjax_nav.env.geometry import lidar, nearest_distance
 from fedjax_nav.env.gym_task import MIN_START_GOAL, PLACEMENT_MARGIN
 from fedjax_nav.env.robot import unicycle
 from fedjax_nav.worlds import World
 
+DOOR_RANGE = 3.5  # m: the beam of `wait_at_door`'s sight line
 FLEET_TRIES = 256  # candidates per room, shared by its robots' starts and goals
 # m between any two of a room's starts and goals: two robot discs (D_c = worlds.CLEARANCE) and
 # the placement margin each, so that no robot starts in contact with another or on its goal
@@ -64,11 +65,70 @@ def give_way(pose: jax.Array, action: jax.Array, others: jax.Array, radius: jax.
     return jnp.where((params.give_way > 0) & jnp.any(nearer), jnp.array([0.0, -1.0], action.dtype), action)
 
 
+def _nearest_points(world, xy: jax.Array, side: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """(d f32[M + C], q f32[M + C, 2]): for every segment and circle of `world` the distance from
+    `xy` to its nearest point q, inf for padding rows; with `side` (a unit vector) only the part
+    behind `xy` as seen along `side` counts (points p with (p - xy) . side <= 0; a circle by its
+    centre), inf where none is."""
+    a, b = world.segments[:, :2] - xy, world.segments[:, 2:] - xy
+    ok = jnp.sum((b - a) ** 2, axis=-1) > 0
+    if side is not None:  # clip each segment to the half-plane behind xy
+        sa, sb = a @ side, b @ side
+        cut = a + (sa / jnp.where(sa == sb, 1.0, sa - sb))[:, None] * (b - a)
+        a, b = jnp.where((sa > 0)[:, None], cut, a), jnp.where((sb > 0)[:, None], cut, b)
+        ok = ok & ~((sa > 0) & (sb > 0))
+    e = b - a
+    t = jnp.clip(-jnp.sum(a * e, -1) / jnp.maximum(jnp.sum(e * e, -1), 1e-12), 0.0, 1.0)
+    q = a + t[:, None] * e
+    c, r = world.circles[:, :2] - xy, world.circles[:, 2]
+    dc = jnp.linalg.norm(c, axis=-1)
+    qc = c - (r / jnp.maximum(dc, 1e-12))[:, None] * c
+    okc = r > 0 if side is None else (r > 0) & (c @ side <= 0)
+    d = jnp.concatenate([jnp.where(ok, jnp.linalg.norm(q, axis=-1), jnp.inf), jnp.where(okc, dc - r, jnp.inf)])
+    return d, jnp.concatenate([q, qc]) + xy
+
+
+def _across(world, xy: jax.Array) -> jax.Array:
+    """f32[]: m across the room at `xy`: the distance to the nearest wall or obstacle, plus the
+    distance to the nearest one on the far side (behind `xy` as seen from the first). In a door or
+    a corridor, its width; beside a single wall or in a corner, the room's."""
+    d, q = _nearest_points(world, xy)
+    k = jnp.argmin(d)
+    side = (q[k] - xy) / jnp.maximum(d[k], 1e-12)
+    return d[k] + jnp.min(_nearest_points(world, xy, side)[0])
+
+
+def wait_at_door(pose: jax.Array, action: jax.Array, others: jax.Array, params) -> jax.Array:
+    """`action`, or (0, 0) while another robot of `others` (circles f32[K, 3], r = 0: none) stands in
+    a door, and the robot does not, and the other is ahead (in front of the line through the robot
+    across its heading), within `params.give_way_reach` of its centre and in its sight (no wall
+    between the centres): a place is a door (or a gap, a corridor) where the nearest walls or
+    obstacles either side of it are nearer together than `params.give_way_door` (`_across`;
+    docs/shared_rooms.md, "Waiting at doors"). The robot waits, facing the door, for the other to come through, instead
+    of meeting it there and giving way (`give_way`) beside the door's edge. Unchanged, bitwise, when
+    give_way_door is 0 or no robot is in a door near."""
+    world = params.world
+    rel = others[:, :2] - pose[None, :2]
+    dist = jnp.linalg.norm(rel, axis=-1)
+    angle = jnp.arctan2(rel[:, 1], rel[:, 0])
+    heading = jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])])
+    theirs = jax.vmap(lambda xy: _across(world, xy))(others[:, :2])
+    mine = _across(world, pose[:2])
+    sight = jax.vmap(lambda a: lidar(world.segments, jnp.stack([pose[0], pose[1], a]), 1, DOOR_RANGE, world.circles)[0])
+    seen = sight(angle) >= jnp.minimum(dist, DOOR_RANGE)
+    door = params.give_way_door
+    wait = (others[:, 2] > 0) & (dist < params.give_way_reach) & (rel @ heading > 0) & seen
+    wait = wait & (theirs < door) & (mine >= door)
+    return jnp.where((door > 0) & jnp.any(wait), jnp.zeros(2, action.dtype), action)
+
+
 def fleet_move(env, keys, states, actions, params, present, per: int):
-    """`jax.vmap(env.move)` in shared rooms (robot-major, `per` rooms): each robot gives way
-    (`give_way`) to the others where they are before the move. `present`: bool[robots]."""
+    """`jax.vmap(env.move)` in shared rooms (robot-major, `per` rooms): each robot waits at doors
+    (`wait_at_door`) and gives way (`give_way`) to the others where they are before the move.
+    `present`: bool[robots]."""
     radius = jax.vmap(env.radius)(params)
     before = fleet_others(states.pose, radius, present, per)
+    actions = jax.vmap(wait_at_door)(states.pose, actions, before, params)
     actions = jax.vmap(give_way)(states.pose, actions, before, radius, params)
     return jax.vmap(env.move)(keys, states, actions, params)
 

@@ -97,10 +97,13 @@ def detour_split(ep: pd.DataFrame) -> dict:
 
 def pool_seeds(named: list[tuple[str, pd.DataFrame]]) -> pd.DataFrame:
     """The episodes of several evaluations whose runs trained other seeds of one config (e.g. seeds
-    0-1 and 2-3), as one frame; ValueError naming the first evaluation whose seeds are pooled already."""
+    0-1 and 2-3), or the same seeds with other robots per room (a shared-room evaluation's K = 4 in
+    one folder and K = 1, 2, 8 in another), as one frame; ValueError naming the first evaluation
+    whose seeds are pooled already (for one of its K, where the frames have robots_per_room)."""
     seen: set = set()
     for name, ep in named:
-        if seen & set(ep["seed"]):
-            raise ValueError(f"{name}: its seeds {sorted(seen & set(ep['seed']))} are pooled already")
-        seen |= set(ep["seed"])
+        keys = set(zip(ep["seed"], ep["robots_per_room"] if "robots_per_room" in ep else [None] * len(ep)))
+        if seen & keys:
+            raise ValueError(f"{name}: its seeds {sorted({s for s, _ in seen & keys})} are pooled already")
+        seen |= keys
     return pd.concat([ep for _, ep in named], ignore_index=True)

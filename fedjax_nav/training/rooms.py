@@ -107,11 +107,12 @@ class TrainRooms:
                 "env.reward_robot_near is paid between robots of a shared room: "
                 "set env.shared_rooms: true, or leave it 0"
             )
-        if e.give_way != 0 and not self.shared:  # the same: no other robot to give way to
-            raise WorldError(
-                "env.give_way keeps a robot from driving into another of a shared room: "
-                "set env.shared_rooms: true, or leave it 0"
-            )
+        for name in ("give_way", "give_way_door"):  # the same: no other robot to give way to
+            if getattr(e, name) != 0 and not self.shared:
+                raise WorldError(
+                    f"env.{name} keeps a robot from driving into another of a shared room: "
+                    "set env.shared_rooms: true, or leave it 0"
+                )
         if e.plan_keep_right != 0 and not (self.shared and e.plan):  # a rule no robot would follow: as loud
             raise WorldError(
                 "env.plan_keep_right moves the plan's waypoint away from the other robots of a shared room: "
