@@ -85,7 +85,10 @@ def _rule(world, pose, other, door=1.0, reach=1.5):
     params = make_params(world, give_way_door=door, give_way_reach=reach)
     others = jnp.array([[*other, R], [0.0, 0.0, 0.0]], jnp.float32)  # one other, one absent row
     action = jnp.array([0.7, 0.3], jnp.float32)
-    got = np.asarray(jax.jit(shared.wait_at_door)(jnp.asarray(pose, jnp.float32), action, others, params))
+    pose = jnp.asarray(pose, jnp.float32)
+    theirs = jax.vmap(lambda xy: shared._across(world, xy))(others[:, :2])
+    got = shared.wait_at_door(pose, action, others, theirs, shared._across(world, pose[:2]), params)
+    got = np.asarray(got)
     assert np.array_equal(got, [0.0, 0.0]) or np.array_equal(got, action)
     return bool(np.array_equal(got, [0.0, 0.0]))
 

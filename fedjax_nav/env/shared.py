@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 from fedjax_nav import worlds
 from fedjax_nav.env.geometry import lidar, nearest_distance
@@ -22,7 +23,7 @@ from fedjax_nav.env.gym_task import MIN_START_GOAL, PLACEMENT_MARGIN
 from fedjax_nav.env.robot import unicycle
 from fedjax_nav.worlds import World
 
-DOOR_RANGE = 3.5  # m: the beam of `wait_at_door`'s sight line
+SIGHT_RANGE = 3.5  # m: the beam of `wait_at_door`'s sight line (beyond any give_way_reach used)
 FLEET_TRIES = 256  # candidates per room, shared by its robots' starts and goals
 # m between any two of a room's starts and goals: two robot discs (D_c = worlds.CLEARANCE) and
 # the placement margin each, so that no robot starts in contact with another or on its goal
@@ -98,37 +99,44 @@ def _across(world, xy: jax.Array) -> jax.Array:
     return d[k] + jnp.min(_nearest_points(world, xy, side)[0])
 
 
-def wait_at_door(pose: jax.Array, action: jax.Array, others: jax.Array, params) -> jax.Array:
+def wait_at_door(pose: jax.Array, action: jax.Array, others: jax.Array, theirs: jax.Array, mine, params) -> jax.Array:
     """`action`, or (0, 0) while another robot of `others` (circles f32[K, 3], r = 0: none) stands in
     a door, and the robot does not, and the other is ahead (in front of the line through the robot
     across its heading), within `params.give_way_reach` of its centre and in its sight (no wall
     between the centres): a place is a door (or a gap, a corridor) where the nearest walls or
-    obstacles either side of it are nearer together than `params.give_way_door` (`_across`;
-    docs/shared_rooms.md, "Waiting at doors"). The robot waits, facing the door, for the other to come through, instead
-    of meeting it there and giving way (`give_way`) beside the door's edge. Unchanged, bitwise, when
-    give_way_door is 0 or no robot is in a door near."""
+    obstacles either side of it are nearer together than `params.give_way_door` (`theirs` f32[K]
+    and `mine` f32[]: `_across` at the others' centres and the robot's; docs/shared_rooms.md,
+    "Waiting at doors"). The robot waits, facing the door, for the other to come through, instead
+    of meeting it there and giving way (`give_way`) beside the door's edge. Unchanged, bitwise,
+    when give_way_door is 0 or no robot is in a door near."""
     world = params.world
     rel = others[:, :2] - pose[None, :2]
     dist = jnp.linalg.norm(rel, axis=-1)
-    angle = jnp.arctan2(rel[:, 1], rel[:, 0])
     heading = jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])])
-    theirs = jax.vmap(lambda xy: _across(world, xy))(others[:, :2])
-    mine = _across(world, pose[:2])
-    sight = jax.vmap(lambda a: lidar(world.segments, jnp.stack([pose[0], pose[1], a]), 1, DOOR_RANGE, world.circles)[0])
-    seen = sight(angle) >= jnp.minimum(dist, DOOR_RANGE)
     door = params.give_way_door
-    wait = (others[:, 2] > 0) & (dist < params.give_way_reach) & (rel @ heading > 0) & seen
+    wait = (others[:, 2] > 0) & (dist < params.give_way_reach) & (rel @ heading > 0)
     wait = wait & (theirs < door) & (mine >= door)
-    return jnp.where((door > 0) & jnp.any(wait), jnp.zeros(2, action.dtype), action)
+    ray = lambda a: lidar(world.segments, jnp.stack([pose[0], pose[1], a]), 1, SIGHT_RANGE, world.circles)[0]  # noqa: E731
+    seen = jax.vmap(ray)(jnp.arctan2(rel[:, 1], rel[:, 0])) >= jnp.minimum(dist, SIGHT_RANGE)
+    return jnp.where((door > 0) & jnp.any(wait & seen), jnp.zeros(2, action.dtype), action)
 
 
 def fleet_move(env, keys, states, actions, params, present, per: int):
     """`jax.vmap(env.move)` in shared rooms (robot-major, `per` rooms): each robot waits at doors
     (`wait_at_door`) and gives way (`give_way`) to the others where they are before the move.
-    `present`: bool[robots]."""
+    `present`: bool[robots]. The door check runs only when some robot has env.give_way_door on
+    (`lax.cond`: the widths cost a pass over the room's walls per robot, about as much as the
+    lidar; a sweep that batches the field computes it for every point)."""
     radius = jax.vmap(env.radius)(params)
     before = fleet_others(states.pose, radius, present, per)
-    actions = jax.vmap(wait_at_door)(states.pose, actions, before, params)
+
+    def doors(actions):
+        across = jax.vmap(lambda p, xy: _across(p.world, xy))(params, states.pose[:, :2])
+        n = across.shape[0] // per
+        theirs = jnp.broadcast_to(across.reshape(n, per).T[None], (n, per, n)).reshape(n * per, n)
+        return jax.vmap(wait_at_door)(states.pose, actions, before, theirs, across, params)
+
+    actions = lax.cond(jnp.any(params.give_way_door > 0), doors, lambda a: a, actions)
     actions = jax.vmap(give_way)(states.pose, actions, before, radius, params)
     return jax.vmap(env.move)(keys, states, actions, params)
 
