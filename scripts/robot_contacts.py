@@ -7,8 +7,9 @@ within 1 m before the contact, and the room the two had to pass (the contact mid
 to the nearest wall or obstacle: under 2 D_c two discs cannot stand abreast there). Writes
 `contacts.csv` (one row per robot-robot collision), `contacts.json` (the shares) and
 `contacts.png` (the last 6 s of the first contacts). The obstacle contacts too, one row each in
-`obstacles.csv`: how near the nearest other robot was, and whether the robot had given way
-(stood and turned right at full rate, `env.give_way`) within the last 3 s. With --collect, the
+`obstacles.csv`: which other robot was nearest and how near, and whether the robot had given way
+(stood and turned right at full rate, `env.give_way`) within the last 3 s, and `obstacles.png` (the
+last 6 s of the first eight with another robot within 1 m, over the walls). With --collect, the
 table of several such folders (one row each) instead.
 
     python scripts/robot_contacts.py RUN --set env.plan_margin=0.3 --set env.plan_lookahead=0.5 \
@@ -105,10 +106,12 @@ def wall_contacts(poses: np.ndarray, steps: np.ndarray, collision: np.ndarray, t
         seg = poses[max(s - GAVE_WAY_WINDOW, 0) : s + 1, i]
         stood = np.linalg.norm(np.diff(seg[:, :2], axis=0), axis=-1) < 1e-4
         right = wrap_angle(np.diff(seg[:, 2])) < -0.9 * turn
+        other = int(live[int(np.argmin(d))]) if live else -1
         rows.append(
-            {"robot": int(i), "step": s, "other_distance": float(d.min()), "gave_way_steps": int((stood & right).sum())}
+            {"robot": int(i), "step": s, "other": other, "other_distance": float(d.min())}
+            | {"gave_way_steps": int((stood & right).sum())}
         )
-    return pd.DataFrame(rows, columns=["robot", "step", "other_distance", "gave_way_steps"])
+    return pd.DataFrame(rows, columns=["robot", "step", "other", "other_distance", "gave_way_steps"])
 
 
 def wall_shares(df: pd.DataFrame) -> dict:
@@ -181,6 +184,40 @@ def figure(panels: list, out: Path, dt: float) -> Path:
         ax.set_ylim(-1.6, 1.6)
         ax.set_title(f"{row.kind}, other {row['where']}", fontsize=9)
     path = out / "contacts.png"
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def wall_figure(panels: list, out: Path, dt: float) -> Path:
+    """The last 6 s before each of the first obstacle contacts with another robot within 1 m: the
+    robot (solid) and the nearest other (dashed), discs of D_c with their headings, centred on the
+    robot at the contact, over the room's walls and obstacles (grey)."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
+
+    from fedjax_nav.evaluation.shared_rooms import ROBOT_DISC
+
+    rows_n, cols = (len(panels) + 3) // 4, min(len(panels), 4)
+    fig = Figure(figsize=(3.0 * cols, 3.0 * rows_n), layout="constrained")
+    back = int(round(6.0 / dt))
+    for n, (row, poses, segments, circles) in enumerate(panels):
+        ax = fig.add_subplot(rows_n, cols, n + 1)
+        s, c = int(row.step), poses[int(row.step), int(row.robot), :2]
+        for x1, y1, x2, y2 in segments:
+            ax.plot([x1 - c[0], x2 - c[0]], [y1 - c[1], y2 - c[1]], color="0.4", lw=2)
+        for cx, cy, r in circles[circles[:, 2] > 0]:
+            ax.add_patch(Circle((cx - c[0], cy - c[1]), r, color="0.6"))
+        for r, style in ((int(row.robot), "-"), (int(row.other), "--")):
+            xy = poses[max(0, s - back) : s + 1, r, :2] - c
+            (line,) = ax.plot(xy[:, 0], xy[:, 1], style, lw=1.5)
+            ax.add_patch(Circle(tuple(xy[-1]), ROBOT_DISC, alpha=0.3, color=line.get_color()))
+            ahead = xy[-1] + 0.35 * np.array([np.cos(poses[s, r, 2]), np.sin(poses[s, r, 2])])
+            ax.annotate("", ahead, xy[-1], arrowprops={"arrowstyle": "->", "color": line.get_color()})
+        ax.set_aspect("equal")
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_ylim(-1.6, 1.6)
+        ax.set_title(f"room {int(row.room)}, gave way {int(row.gave_way_steps)} steps", fontsize=9)
+    path = out / "obstacles.png"
     fig.savefig(path, dpi=100)
     return path
 
@@ -266,7 +303,7 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     res = jax.device_get(pr.program(k, trajectories=True)(run.actor_params, pr.rooms, pr.keys(0, k)))
-    frames, walls, panels = [], [], []
+    frames, walls, panels, near = [], [], [], []
     R, A = res["steps"].shape[:2]
     turn = float(cfg.env.omega_max * cfg.env.dt)
     for r in range(R):
@@ -275,6 +312,9 @@ def main(argv=None) -> int:
             df = contacts(poses, steps, res["robot_collision"][r, g], float(cfg.env.dt))
             frames.append(df.assign(room=r, family=pr.families[r], agent=g))
             walls.append(wall_contacts(poses, steps, res["collision"][r, g], turn).assign(room=r, agent=g))
+            segs, circles = np.asarray(pr.world.segments[r]), np.asarray(pr.world.circles[r])
+            close = [(w, poses, segs, circles) for _, w in walls[-1].iterrows() if w.other_distance < 1.0]
+            near += close[: 8 - len(near)]
             panels += [(row, poses) for _, row in df.iterrows() if row.robot < row.other][: 8 - len(panels)]
     df = room_to_pass(pd.concat(frames, ignore_index=True), res["poses"], pr.world)
     out.mkdir(parents=True, exist_ok=True)
@@ -287,6 +327,8 @@ def main(argv=None) -> int:
     print(json.dumps(summary, indent=1))
     if panels:
         print("wrote", figure(panels, out, float(cfg.env.dt)))
+    if near:
+        print("wrote", wall_figure(near, out, float(cfg.env.dt)))
     return 0
 
 

@@ -116,6 +116,8 @@ def test_the_scripts_contacts_are_the_robot_robot_collisions_of_the_evaluation(t
     assert got.sort_values(["room", "agent", "robot"])[key].values.tolist() == want[key].values.tolist()
     walls = pd.read_csv(tmp_path / "c" / "obstacles.csv")
     assert len(walls) == ep.collision.sum()  # every obstacle contact, one row each
+    assert ((walls.other >= 0) == np.isfinite(walls.other_distance)).all()  # the nearest other, where one is
+    assert (tmp_path / "c" / "obstacles.png").exists() == (walls.other_distance < 1.0).any()
     assert robot_contacts.main(argv) == 2  # kept, not overwritten
 
 
@@ -160,6 +162,7 @@ def test_an_obstacle_contact_after_giving_way_near_another_robot_is_counted_as_s
     assert df.other_distance[0] == pytest.approx(np.linalg.norm(a[15, :2] - b[15, :2]))
     assert df.other_distance[1] == pytest.approx(np.linalg.norm(c[15, :2] - b[15, :2]))
     gone = robot_contacts.wall_contacts(poses, np.array([15, 3, 4]), np.array([True, False, False]), turn)
-    assert gone.other_distance.tolist() == [np.inf]  # the others left the room at steps 3 and 4
+    assert df.other.tolist() == [1, 1]  # the nearest other robot of each
+    assert gone.other_distance.tolist() == [np.inf] and gone.other.tolist() == [-1]  # the others left at steps 3, 4
     shares = robot_contacts.wall_shares(df)
     assert shares["obstacle_contacts"] == 2 and shares["obstacle_after_giving_way"] == 0.5
