@@ -160,28 +160,36 @@ def shares(df: pd.DataFrame) -> dict:
     }
 
 
+def _pair(ax, poses: np.ndarray, s: int, robot: int, other: int, back: int) -> np.ndarray:
+    """The last `back` steps to step `s` of `robot` (solid) and `other` (dashed) on `ax`, centred on
+    the robot at `s` (returned), each a disc of D_c with its heading; a window of 3.2 m."""
+    from matplotlib.patches import Circle
+
+    from fedjax_nav.evaluation.shared_rooms import ROBOT_DISC
+
+    c = poses[s, robot, :2]
+    for r, style in ((robot, "-"), (other, "--")):
+        xy = poses[max(0, s - back) : s + 1, r, :2] - c
+        (line,) = ax.plot(xy[:, 0], xy[:, 1], style, lw=1.5)
+        ax.add_patch(Circle(tuple(xy[-1]), ROBOT_DISC, alpha=0.3, color=line.get_color()))
+        ahead = xy[-1] + 0.35 * np.array([np.cos(poses[s, r, 2]), np.sin(poses[s, r, 2])])
+        ax.annotate("", ahead, xy[-1], arrowprops={"arrowstyle": "->", "color": line.get_color()})
+    ax.set_aspect("equal")
+    ax.set_xlim(-1.6, 1.6)
+    ax.set_ylim(-1.6, 1.6)
+    return c
+
+
 def figure(panels: list, out: Path, dt: float) -> Path:
     """The last 6 s before each of the first contacts, the two robots' paths (the robot solid,
     the other dashed) centred on the contact, each robot a disc of D_c with its heading."""
     from matplotlib.figure import Figure
-    from matplotlib.patches import Circle
-
-    from fedjax_nav.evaluation.shared_rooms import ROBOT_DISC
 
     fig = Figure(figsize=(3.0 * min(len(panels), 4), 3.0 * ((len(panels) + 3) // 4)), layout="constrained")
     back = int(round(6.0 / dt))
     for n, (row, poses) in enumerate(panels):
         ax = fig.add_subplot((len(panels) + 3) // 4, min(len(panels), 4), n + 1)
-        s, c = row.step, poses[row.step, row.robot, :2]
-        for r, style in ((row.robot, "-"), (row.other, "--")):
-            xy = poses[max(0, s - back) : s + 1, r, :2] - c
-            (line,) = ax.plot(xy[:, 0], xy[:, 1], style, lw=1.5)
-            ax.add_patch(Circle(tuple(xy[-1]), ROBOT_DISC, alpha=0.3, color=line.get_color()))
-            ahead = xy[-1] + 0.35 * np.array([np.cos(poses[s, r, 2]), np.sin(poses[s, r, 2])])
-            ax.annotate("", ahead, xy[-1], arrowprops={"arrowstyle": "->", "color": line.get_color()})
-        ax.set_aspect("equal")
-        ax.set_xlim(-1.6, 1.6)
-        ax.set_ylim(-1.6, 1.6)
+        _pair(ax, poses, int(row.step), int(row.robot), int(row.other), back)
         ax.set_title(f"{row.kind}, other {row['where']}", fontsize=9)
     path = out / "contacts.png"
     fig.savefig(path, dpi=100)
@@ -195,27 +203,16 @@ def wall_figure(panels: list, out: Path, dt: float) -> Path:
     from matplotlib.figure import Figure
     from matplotlib.patches import Circle
 
-    from fedjax_nav.evaluation.shared_rooms import ROBOT_DISC
-
     rows_n, cols = (len(panels) + 3) // 4, min(len(panels), 4)
     fig = Figure(figsize=(3.0 * cols, 3.0 * rows_n), layout="constrained")
     back = int(round(6.0 / dt))
     for n, (row, poses, segments, circles) in enumerate(panels):
         ax = fig.add_subplot(rows_n, cols, n + 1)
-        s, c = int(row.step), poses[int(row.step), int(row.robot), :2]
+        c = _pair(ax, poses, int(row.step), int(row.robot), int(row.other), back)
         for x1, y1, x2, y2 in segments:
             ax.plot([x1 - c[0], x2 - c[0]], [y1 - c[1], y2 - c[1]], color="0.4", lw=2)
         for cx, cy, r in circles[circles[:, 2] > 0]:
             ax.add_patch(Circle((cx - c[0], cy - c[1]), r, color="0.6"))
-        for r, style in ((int(row.robot), "-"), (int(row.other), "--")):
-            xy = poses[max(0, s - back) : s + 1, r, :2] - c
-            (line,) = ax.plot(xy[:, 0], xy[:, 1], style, lw=1.5)
-            ax.add_patch(Circle(tuple(xy[-1]), ROBOT_DISC, alpha=0.3, color=line.get_color()))
-            ahead = xy[-1] + 0.35 * np.array([np.cos(poses[s, r, 2]), np.sin(poses[s, r, 2])])
-            ax.annotate("", ahead, xy[-1], arrowprops={"arrowstyle": "->", "color": line.get_color()})
-        ax.set_aspect("equal")
-        ax.set_xlim(-1.6, 1.6)
-        ax.set_ylim(-1.6, 1.6)
         ax.set_title(f"room {int(row.room)}, gave way {int(row.gave_way_steps)} steps", fontsize=9)
     path = out / "obstacles.png"
     fig.savefig(path, dpi=100)
