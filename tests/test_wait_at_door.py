@@ -2,8 +2,9 @@
 `wait_at_door`).
 
 A room 6 m square split by a wall at x = 0 with one door of known width: the width the rule
-measures across the door against the analytic width, the rule against its definition (the other
-robot in the door, ahead, in reach, in sight; the robot itself not in a door), and off bitwise.
+measures across the door against the analytic width (and, in a procedural room, against a float64
+brute force), the rule against its definition (the other robot in the door, ahead, in reach, in
+sight; the robot itself not in a door), and off bitwise.
 """
 
 import jax

@@ -23,7 +23,6 @@ from fedjax_nav.env.gym_task import MIN_START_GOAL, PLACEMENT_MARGIN
 from fedjax_nav.env.robot import unicycle
 from fedjax_nav.worlds import World
 
-SIGHT_RANGE = 3.5  # m: the beam of `wait_at_door`'s sight line (beyond any give_way_reach used)
 FLEET_TRIES = 256  # candidates per room, shared by its robots' starts and goals
 # m between any two of a room's starts and goals: two robot discs (D_c = worlds.CLEARANCE) and
 # the placement margin each, so that no robot starts in contact with another or on its goal
@@ -39,15 +38,18 @@ def others(xy: jax.Array, radius: jax.Array, present: jax.Array) -> jax.Array:
     return jnp.concatenate([jnp.broadcast_to(xy[None], (k, k, 2)), r[..., None]], axis=-1)
 
 
+def by_room(x: jax.Array, per: int) -> jax.Array:
+    """[R * per, ...] robot-major (environment j of robot i is row i * per + j, in room j) ->
+    [per, R, ...]: each room's R robots."""
+    return x.reshape(x.shape[0] // per, per, *x.shape[1:]).swapaxes(0, 1)
+
+
 def fleet_others(poses: jax.Array, radius: jax.Array, present: jax.Array, per: int) -> jax.Array:
     """Every environment's others: poses f32[R * per, 3] and radius f32[R * per] robot-major
-    (environment j of robot i is row i * per + j, in room j), present bool[R] ->
-    f32[R * per, R, 3]."""
+    (`by_room`), present bool[R] -> f32[R * per, R, 3]."""
     n = poses.shape[0] // per
-    xy = poses[:, :2].reshape(n, per, 2).swapaxes(0, 1)  # [per rooms, R, 2]
-    rad = radius.reshape(n, per).T
-    out = jax.vmap(others, in_axes=(0, 0, None))(xy, rad, present)  # [per, R, R, 3]
-    return out.swapaxes(0, 1).reshape(n * per, n, 3)
+    out = jax.vmap(others, in_axes=(0, 0, None))(by_room(poses[:, :2], per), by_room(radius, per), present)
+    return out.swapaxes(0, 1).reshape(n * per, n, 3)  # [per, R, R, 3] -> robot-major
 
 
 def give_way(pose: jax.Array, action: jax.Array, others: jax.Array, radius: jax.Array, params) -> jax.Array:
@@ -93,7 +95,7 @@ def _across(world, xy: jax.Array) -> jax.Array:
     """f32[]: m across the room at `xy`: the distance to the nearest wall or obstacle, plus the
     distance to the nearest one on the far side (behind `xy` as seen from the first). In a door or
     a corridor, its width; beside a single wall or in a corner, the room's."""
-    d, q = _nearest_points(world, xy)
+    d, q = _nearest_points(world, xy)  # not geometry.nearest_distance: the far side needs the point
     k = jnp.argmin(d)
     side = (q[k] - xy) / jnp.maximum(d[k], 1e-12)
     return d[k] + jnp.min(_nearest_points(world, xy, side)[0])
@@ -116,8 +118,9 @@ def wait_at_door(pose: jax.Array, action: jax.Array, others: jax.Array, theirs: 
     door = params.give_way_door
     wait = (others[:, 2] > 0) & (dist < params.give_way_reach) & (rel @ heading > 0)
     wait = wait & (theirs < door) & (mine >= door)
-    ray = lambda a: lidar(world.segments, jnp.stack([pose[0], pose[1], a]), 1, SIGHT_RANGE, world.circles)[0]  # noqa: E731
-    seen = jax.vmap(ray)(jnp.arctan2(rel[:, 1], rel[:, 0])) >= jnp.minimum(dist, SIGHT_RANGE)
+    # in sight: a beam towards the other's centre, as long as the way to it, reaches it
+    ray = lambda a, d: lidar(world.segments, jnp.stack([pose[0], pose[1], a]), 1, d, world.circles)[0]  # noqa: E731
+    seen = jax.vmap(ray)(jnp.arctan2(rel[:, 1], rel[:, 0]), dist) >= dist
     return jnp.where((door > 0) & jnp.any(wait & seen), jnp.zeros(2, action.dtype), action)
 
 
@@ -125,15 +128,15 @@ def fleet_move(env, keys, states, actions, params, present, per: int):
     """`jax.vmap(env.move)` in shared rooms (robot-major, `per` rooms): each robot waits at doors
     (`wait_at_door`) and gives way (`give_way`) to the others where they are before the move.
     `present`: bool[robots]. The door check runs only when some robot has env.give_way_door on
-    (`lax.cond`: the widths cost a pass over the room's walls per robot, about as much as the
-    lidar; a sweep that batches the field computes it for every point)."""
+    (`lax.cond`: its widths and sight lines about double the step, docs/benchmarks.md; under a
+    vmap over that field, as in a sweep that batches it, both branches run)."""
     radius = jax.vmap(env.radius)(params)
     before = fleet_others(states.pose, radius, present, per)
 
     def doors(actions):
         across = jax.vmap(lambda p, xy: _across(p.world, xy))(params, states.pose[:, :2])
         n = across.shape[0] // per
-        theirs = jnp.broadcast_to(across.reshape(n, per).T[None], (n, per, n)).reshape(n * per, n)
+        theirs = jnp.broadcast_to(by_room(across, per)[None], (n, per, n)).reshape(n * per, n)  # room's widths
         return jax.vmap(wait_at_door)(states.pose, actions, before, theirs, across, params)
 
     actions = lax.cond(jnp.any(params.give_way_door > 0), doors, lambda a: a, actions)
