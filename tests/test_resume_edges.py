@@ -111,22 +111,28 @@ def test_an_empty_lock_is_taken_over_once_it_is_old(tmp_path, capfd):
 
 def test_a_stale_lock_is_taken_over_by_exactly_one_of_several(tmp_path):
     """Four processes find the same dead-owner lock at the same moment: one takes it, three are
-    told it is in use."""
-    (tmp_path / rundir.LOCK).write_text(f"{dead_pid()} {socket.gethostname()}\n")
+    told it is in use. They meet at a barrier of files (not a clock time: on a loaded machine an
+    interpreter may start seconds late), and whoever took the lock holds it until all four have
+    tried."""
+    run, sync = tmp_path / "run", tmp_path / "sync"
+    run.mkdir(), sync.mkdir()
+    (run / rundir.LOCK).write_text(f"{dead_pid()} {socket.gethostname()}\n")
     script = (
-        "import sys, time\nfrom fedjax_nav import rundir, runlock\nt0 = float(sys.argv[2])\n"
-        "while time.time() < t0: pass\n"
-        "try:\n    lock = runlock.RunLock(sys.argv[1])\nexcept rundir.RunDirError:\n    print('refused'); sys.exit()\n"
-        "print('took', flush=True); time.sleep(1.5); lock.release()\n"
+        "import sys, time, pathlib\nfrom fedjax_nav import rundir, runlock\n"
+        "sync, me = pathlib.Path(sys.argv[2]), sys.argv[3]\n(sync / f'ready-{me}').touch()\n"
+        "while len(list(sync.glob('ready-*'))) < 4: time.sleep(0.001)\n"
+        "try:\n    lock = runlock.RunLock(sys.argv[1])\nexcept rundir.RunDirError:\n"
+        "    (sync / f'refused-{me}').touch(); print('refused'); sys.exit()\n"
+        "(sync / f'took-{me}').touch(); print('took', flush=True)\n"
+        "while len([*sync.glob('refused-*'), *sync.glob('took-*')]) < 4: time.sleep(0.01)\nlock.release()\n"
     )
-    t0 = str(time.time() + 3.0)  # after every interpreter has started
     procs = [
-        subprocess.Popen([sys.executable, "-c", script, str(tmp_path), t0], stdout=subprocess.PIPE, text=True)
-        for _ in range(4)
+        subprocess.Popen([sys.executable, "-c", script, str(run), str(sync), str(i)], stdout=subprocess.PIPE, text=True)
+        for i in range(4)
     ]
     outs = sorted(p.communicate(timeout=TIMEOUT)[0].strip() for p in procs)
     assert outs == ["refused", "refused", "refused", "took"], outs
-    assert not (tmp_path / rundir.LOCK).exists() and not (tmp_path / rundir.LOCK_TAKEOVER).exists()
+    assert not (run / rundir.LOCK).exists() and not (run / rundir.LOCK_TAKEOVER).exists()
 
 
 # ----------------------------------------------------------------------------- unfinished saves
