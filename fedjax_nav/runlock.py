@@ -1,6 +1,8 @@
 """The lock of a run directory's one writer: `RUN/.lock` (`fedjax_nav.rundir.LOCK`) holding the
 owner's "PID HOST", created atomically; a stale one (its process gone, or empty and old) is taken
-over, one process at a time (docs/reliability.md).
+over, one process at a time (docs/reliability.md). Readers (an `evaluate` that writes its results
+elsewhere) each hold a file of their own (`ReadLock`): any number of them read a run together, and
+a writer waits for none of them but is refused while one is live.
 
 The file names are `fedjax_nav.rundir`'s (`LOCK`, `LOCK_TAKEOVER`), and so are the errors: a lock
 held by another process is a `RunDirError` (exit 2 at the CLI), one that cannot be created a
@@ -12,7 +14,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from fedjax_nav.rundir import LOCK, LOCK_TAKEOVER, RunDirError, WriteError, unlink_quietly
+from fedjax_nav.rundir import LOCK, LOCK_TAKEOVER, READ_LOCK, RunDirError, WriteError, unlink_quietly
 
 EMPTY_LOCK_S = 5.0  # s: an empty .lock older than this was left by a process killed while creating it
 
@@ -31,24 +33,28 @@ class RunLock:
 
     def __init__(self, directory: str | Path, what: str = "run directory"):
         import socket
-        import time
 
         self.path = Path(directory) / LOCK
         self.owner = f"{os.getpid()} {socket.gethostname()}"
+        self._acquire(directory, what)
+        reader = _live_reader(Path(directory))  # after taking the lock: a reader after us sees it
+        if reader is not None:
+            self.release()
+            raise _in_use(directory, what, reader, "being read by")
+
+    def _acquire(self, directory: str | Path, what: str) -> None:
+        import time
+
         deadline = time.monotonic() + 10.0  # s: a take-over by another process lasts microseconds
         while True:
             if self._create():
                 return
             stale = _stale(self.path)
             if stale is None:
-                pid, host = _lock_owner(self.path)
+                pid, _ = _lock_owner(self.path)
                 if pid is None and not self.path.exists() and time.monotonic() < deadline:
                     continue  # released between our attempt and the read: try again
-                who = f"process {pid} on {host}" if pid is not None else "another process"
-                raise RunDirError(
-                    f"{directory}: this {what} is in use by {who} (lock {self.path}); wait for "
-                    "it to end, or remove the lock file if that process is gone"
-                ) from None
+                raise _in_use(directory, what, self.path) from None
             if self._take_over(stale):
                 return
             if time.monotonic() > deadline:
@@ -104,6 +110,62 @@ class RunLock:
 
     def __exit__(self, *exc):
         self.release()
+
+
+class ReadLock:
+    """`RUN/.lock.read-HOST-PID-N` (`rundir.READ_LOCK`) holding the reader's "PID HOST": one of any
+    number of readers of a run (`evaluate` writing its results elsewhere, `--out`), refused while a
+    live writer holds `RUN/.lock`; a writer (`RunLock`) is refused while a live reader holds one.
+    Each side creates its own file first and then looks for the other's, so of a reader and a
+    writer arriving together at least one sees the other. A reader's file whose process is gone is
+    stale: writers remove it."""
+
+    _made = 0  # readers made by this process, for unique file names
+
+    def __init__(self, directory: str | Path, what: str = "run directory"):
+        import socket
+
+        ReadLock._made += 1
+        host, pid = socket.gethostname(), os.getpid()
+        self.path = Path(directory) / f"{READ_LOCK}-{host}-{pid}-{ReadLock._made}"
+        try:
+            self.path.write_text(f"{pid} {host}\n")
+        except OSError as e:
+            raise WriteError(f"{self.path}: cannot create the lock file ({e.strerror or e})") from None
+        writer = Path(directory) / LOCK
+        if writer.exists() and _stale(writer) is None:
+            self.release()
+            raise _in_use(directory, what, writer)
+
+    def release(self) -> None:
+        unlink_quietly(self.path)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def _in_use(directory: str | Path, what: str, lock: Path, doing: str = "in use by") -> RunDirError:
+    """The one-line refusal naming the owner of `lock` (a writer's or a reader's)."""
+    pid, host = _lock_owner(lock)
+    who = f"process {pid} on {host}" if pid is not None else "another process"
+    return RunDirError(
+        f"{directory}: this {what} is {doing} {who} (lock {lock}); wait for it to end, or remove the lock file "
+        "if that process is gone"
+    )
+
+
+def _live_reader(directory: Path) -> Path | None:
+    """A live reader's lock file in `directory`, or None; stale ones found on the way are removed."""
+    for path in sorted(directory.glob(f"{READ_LOCK}-*")):
+        if _stale(path) is None:
+            if path.exists():
+                return path
+        else:
+            unlink_quietly(path)
+    return None
 
 
 def _stale(path: Path) -> str | None:

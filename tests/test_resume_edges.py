@@ -80,6 +80,42 @@ def test_evaluate_refuses_a_run_in_use_and_writes_nothing(untrained_run, capfd, 
     assert sorted(p.name for p in run.iterdir()) == [rundir.CONFIG, rundir.PARAMS]
 
 
+def test_evaluations_written_elsewhere_read_a_run_side_by_side(untrained_run, tmp_path, capfd):
+    """While another evaluation reads the run (its reader's lock held here), an evaluation written
+    elsewhere (`--out`) runs too and leaves the other's lock alone; one that would write into the
+    run is refused, naming the reader."""
+    run = untrained_run
+    with runlock.ReadLock(run) as other:
+        rc = cli.main(["evaluate", str(run), "--no-figures", "--attempts", "1", "--out", str(tmp_path / "ev")])
+        assert rc == 0, capfd.readouterr().err[-1500:]
+        assert (tmp_path / "ev" / rundir.EVAL_JSON).exists()
+        assert sorted(run.glob(f"{rundir.READ_LOCK}-*")) == [other.path]  # its own lock released
+        rc = cli.main(["evaluate", str(run), "--no-figures", "--attempts", "1"])
+        one_line(capfd, rc, 2, str(run), f"being read by process {os.getpid()}", str(other.path))
+    assert sorted(p.name for p in run.iterdir()) == [rundir.CONFIG, rundir.PARAMS]
+
+
+def test_readers_share_a_folder_and_a_writer_waits_for_none_of_them(tmp_path):
+    """Two readers hold one folder together; a writer is refused while one is live and leaves no
+    lock behind; a reader is refused while the writer holds it; a dead reader's file is removed by
+    the next writer."""
+    with runlock.ReadLock(tmp_path) as a, runlock.ReadLock(tmp_path) as b:
+        assert a.path != b.path and a.path.exists() and b.path.exists()
+        with pytest.raises(rundir.RunDirError, match=f"being read by process {os.getpid()}"):
+            runlock.RunLock(tmp_path)
+        assert not (tmp_path / rundir.LOCK).exists()
+    with runlock.RunLock(tmp_path):
+        with pytest.raises(rundir.RunDirError, match=f"in use by process {os.getpid()}"):
+            runlock.ReadLock(tmp_path)
+        assert not list(tmp_path.glob(f"{rundir.READ_LOCK}-*"))
+    pid = dead_pid()
+    dead = tmp_path / f"{rundir.READ_LOCK}-{socket.gethostname()}-{pid}-1"
+    dead.write_text(f"{pid} {socket.gethostname()}\n")
+    with runlock.RunLock(tmp_path):
+        assert not dead.exists()
+    assert not any(tmp_path.iterdir())
+
+
 def test_evaluate_of_a_missing_folder_names_it(tmp_path, capfd):
     """No lock is created for a run folder that does not exist: the loader names it."""
     one_line(capfd, cli.main(["evaluate", str(tmp_path / "nope")]), 2, "no such run directory")

@@ -87,17 +87,20 @@ def _evaluated_dirs(args: argparse.Namespace) -> list[Path]:
 
 
 def _evaluation_lock(run: Path, writes_into: bool):
-    """The run's lock (`runlock.RunLock`) for the whole evaluation: its params.npz is read and its
-    eval/ written while no `train` (e.g. `--overwrite`) can change the folder; a run in use is
-    refused (exit 2). A run folder the user cannot write to is read without a lock when the
-    evaluation is written elsewhere (`--out`)."""
+    """The run's lock for the whole evaluation: its params.npz is read (and, without `--out`, its
+    eval/ written) while no `train` (e.g. `--overwrite`) can change the folder; a run in use is
+    refused (exit 2). An evaluation written elsewhere (`--out`) only reads the run: it holds a
+    reader's lock (`runlock.ReadLock`), so that several evaluations of one run (other settings,
+    other suites) run side by side; one written into the run holds the writer's (`runlock.RunLock`).
+    A run folder the user cannot write to is read without a lock when the evaluation is written
+    elsewhere."""
     import contextlib
 
     from fedjax_nav.rundir import WriteError
-    from fedjax_nav.runlock import RunLock
+    from fedjax_nav.runlock import ReadLock, RunLock
 
     try:
-        return RunLock(run, "run directory")
+        return RunLock(run, "run directory") if writes_into else ReadLock(run, "run directory")
     except WriteError:
         if writes_into:
             raise
