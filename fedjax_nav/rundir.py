@@ -57,7 +57,7 @@ NETWORKS = ("actor", "critic")
 
 LOCK = ".lock"  # "PID HOST" of the one writer (fedjax_nav.runlock)
 LOCK_TAKEOVER = ".lock.takeover"  # held for the moment a stale .lock is replaced
-READ_LOCK = ".lock.read"  # READ_LOCK-HOST-PID-N: "PID HOST" of one of any number of readers (fedjax_nav.runlock)
+READ_LOCK = ".lock.read"  # READ_LOCK-HOST-PID-XXXXXXXX: "PID HOST" of one of any number of readers (fedjax_nav.runlock)
 # What a finished or started run leaves: `train --out` refuses a folder holding any (docs/reliability.md).
 RESULTS = (CONFIG, METRICS, SUMMARY, PARAMS, CURVES, CHECKPOINTS, EVAL, TENSORBOARD)
 

@@ -2,9 +2,9 @@
 owner's "PID HOST", created atomically; a stale one (its process gone, or empty and old) is taken
 over, one process at a time (docs/reliability.md). Readers (an `evaluate` that writes its results
 elsewhere) each hold a file of their own (`ReadLock`): any number of them read a run together, and
-a writer waits for none of them but is refused while one is live.
+a writer is refused while one is live.
 
-The file names are `fedjax_nav.rundir`'s (`LOCK`, `LOCK_TAKEOVER`), and so are the errors: a lock
+The file names are `fedjax_nav.rundir`'s (`LOCK`, `LOCK_TAKEOVER`, `READ_LOCK`), and so are the errors: a lock
 held by another process is a `RunDirError` (exit 2 at the CLI), one that cannot be created a
 `WriteError` (exit 4).
 """
@@ -113,25 +113,25 @@ class RunLock:
 
 
 class ReadLock:
-    """`RUN/.lock.read-HOST-PID-N` (`rundir.READ_LOCK`) holding the reader's "PID HOST": one of any
+    """`RUN/.lock.read-HOST-PID-XXXXXXXX` (`rundir.READ_LOCK`) holding the reader's "PID HOST": one of any
     number of readers of a run (`evaluate` writing its results elsewhere, `--out`), refused while a
     live writer holds `RUN/.lock`; a writer (`RunLock`) is refused while a live reader holds one.
     Each side creates its own file first and then looks for the other's, so of a reader and a
     writer arriving together at least one sees the other. A reader's file whose process is gone is
     stale: writers remove it."""
 
-    _made = 0  # readers made by this process, for unique file names
-
     def __init__(self, directory: str | Path, what: str = "run directory"):
         import socket
+        import tempfile
 
-        ReadLock._made += 1
         host, pid = socket.gethostname(), os.getpid()
-        self.path = Path(directory) / f"{READ_LOCK}-{host}-{pid}-{ReadLock._made}"
-        try:
-            self.path.write_text(f"{pid} {host}\n")
+        try:  # a name of its own, created atomically (O_EXCL), whatever else this process holds
+            fd, name = tempfile.mkstemp(prefix=f"{READ_LOCK}-{host}-{pid}-", dir=directory)
         except OSError as e:
-            raise WriteError(f"{self.path}: cannot create the lock file ({e.strerror or e})") from None
+            raise WriteError(f"{directory}: cannot create a reader's lock file ({e.strerror or e})") from None
+        self.path = Path(name)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{pid} {host}\n")
         writer = Path(directory) / LOCK
         if writer.exists() and _stale(writer) is None:
             self.release()

@@ -95,7 +95,7 @@ def test_evaluations_written_elsewhere_read_a_run_side_by_side(untrained_run, tm
     assert sorted(p.name for p in run.iterdir()) == [rundir.CONFIG, rundir.PARAMS]
 
 
-def test_readers_share_a_folder_and_a_writer_waits_for_none_of_them(tmp_path):
+def test_readers_share_a_folder_and_hold_off_a_writer(tmp_path):
     """Two readers hold one folder together; a writer is refused while one is live and leaves no
     lock behind; a reader is refused while the writer holds it; a dead reader's file is removed by
     the next writer."""
