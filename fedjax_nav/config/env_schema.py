@@ -170,7 +170,13 @@ class EnvConfig:
         doc="give the policy the waypoint of a shortest safe path on the room's map in place of the goal, "
         "and the goal's distance as one more input (static; docs/planning.md)",
     )
-    plan_cells: int = _f(64, lo=2, hi=1024, doc="env.plan: grid cells per side of the room (static)")
+    plan_cells: int = _f(64, lo=2, hi=1024, doc="env.plan, env.path_progress: grid cells per side of the room (static)")
+    path_progress: bool = _f(
+        False,
+        doc="pay the progress reward along the shortest safe path on the room's map (the plan's field) in "
+        "place of the straight line; the observation stays as it is (static; docs/clutter.md, 'Paid along "
+        "the path')",
+    )
     plan_lookahead: float = _f(1.0, lo=0.0, hi=1e4, traced=True, doc="env.plan: m down the path to the waypoint")
     plan_margin: float = _f(
         0.0,

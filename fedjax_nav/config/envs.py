@@ -43,7 +43,9 @@ def env_settings(cfg: Config, mode: str, noise: bool | None = None, episode_leng
         "mode": mode,
         "collision_test": e.collision_test,
         **settings,
-        **({"plan": True, "plan_cells": e.plan_cells} if e.plan else {}),
+        **({"plan": True} if e.plan else {}),
+        **({"path_progress": True} if e.path_progress else {}),
+        **({"plan_cells": e.plan_cells} if e.plan or e.path_progress else {}),
     }
 
 

@@ -77,6 +77,13 @@ class NavEnv:
     distance and bearing of the waypoint `EnvParams.plan_lookahead` m down the field in place of
     the goal's, and the goal's distance as one more entry. plan=False (the default) is the
     mapless program as it was.
+
+    path_progress=True pays the progress reward along the shortest safe path to the goal (the
+    same field, computed at reset, read by `plan.path_progress`) in place of the straight line,
+    so that a detour that moves away from the goal round a wall is paid as it nears the goal by
+    the path; the observation is unchanged (mapless, unless plan=True): the map shapes the
+    reward in training only (docs/clutter.md, "Paid along the path"). False (the default) is
+    the straight-line reward as it was.
     """
 
     def __init__(
@@ -94,6 +101,7 @@ class NavEnv:
         dropout_value: str = "max",
         plan: bool = False,
         plan_cells: int = 64,
+        path_progress: bool = False,
     ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -118,6 +126,7 @@ class NavEnv:
             raise ValueError(f"plan_cells must be >= 2, got {plan_cells!r}")
         self.plan = bool(plan)
         self.plan_cells = int(plan_cells)
+        self.path_progress = bool(path_progress)
 
     @property
     def obs_size(self) -> int:
@@ -204,8 +213,8 @@ class NavEnv:
         k_start, k_obs = jax.random.split(key)
         start_ranges = jax.vmap(self.ranges, in_axes=(0, None))(params.world.starts, params)
         state = self._start(k_start, params, jnp.int32(0), start_ranges)
-        if self.plan:  # the goal is the episode's: a respawn inside it keeps the plan
-            state = state.replace(plan=gp.make(params, state.goal, self.radius(params), self.plan_cells))
+        if self.plan or self.path_progress:  # the goal is the episode's: a respawn inside it keeps the plan
+            state = state.replace(plan=gp.make(params, state.goal, self.radius(params), self.plan_cells, self.plan))
         at = state.plan.starts[state.start_index] if self.plan else None
         return self.observe(k_obs, state, start_ranges[state.start_index], params, at), state
 
@@ -285,8 +294,11 @@ class NavEnv:
                 scan = jnp.minimum(scan, self._cast(NO_SEGMENTS, others, start.pose, params))
             at = state.plan.starts[start.start_index] if self.plan else None
             obs = jnp.where(terminated, self.observe(k_obs, moved, scan, params, at, others), obs)
+        progress = state.dist - dist
+        if self.path_progress:  # along the path; the straight line where the field has no value
+            progress = gp.path_progress(state.plan.field, w.size, state.pose[:2], pose[:2], progress)
         reward = (
-            params.progress_scale * (state.dist - dist)
+            params.progress_scale * progress
             + jnp.where(goal, params.reward_goal, 0.0)
             + jnp.where(collision, params.reward_collision, 0.0)
         )

@@ -13,6 +13,8 @@ cells per side, `cells`, so that rooms of any size share one program.
     names = layout(plan)                                 the observation's entries after the ranges
     wp = at(p, params, goal, xy)                         the waypoint with the params' lookahead
     wp = keep_right(field, size, xy, wp, others, offset, reach)  shared rooms: moved right, a robot ahead
+    d = path_distance(field, size, xy)                   m to the goal along the field from any point
+    r = path_progress(field, size, before, after, straight)  env.path_progress's progress over one step
 
 The grid: `cells` x `cells` square cells of side res = max(W, H) / cells from the room's corner
 (-W/2, -H/2); a cell is free when its centre lies inside the room and keeps at least the
@@ -269,6 +271,31 @@ def keep_right(field: jax.Array, size, xy: jax.Array, wp: jax.Array, others: jax
     return jnp.where(jnp.any(near) & (offset > 0), moved, wp)
 
 
+def path_distance(field: jax.Array, size, xy: jax.Array) -> jax.Array:
+    """f32[]: m from the point `xy` to the goal along `field`: the least, over the cell holding
+    `xy` and its 8 neighbours, of the cell's value plus the straight way from `xy` to its centre
+    (+inf when all nine are): the field read between its cells' centres, so that a step of 2.5 cm
+    is paid about its length along the path, not a cell's side at a time (tests/test_plan.py
+    measures how far a step's change strays from the step's length)."""
+    cells = field.shape[0]
+    _, xs, ys = grid(size, cells)
+    iy, ix = cell_of(xy, size, cells)
+    vals, ny, nx, _ = _neighbours(field, iy, ix)
+    vals = jnp.append(vals, field[iy, ix])
+    ny, nx = jnp.append(ny, iy), jnp.append(nx, ix)
+    return jnp.min(vals + jnp.hypot(xs[nx] - xy[0], ys[ny] - xy[1]))
+
+
+def path_progress(field: jax.Array, size, before: jax.Array, after: jax.Array, straight: jax.Array) -> jax.Array:
+    """f32[]: the progress of one step from `before` to `after` (points f32[2]) along the field,
+    `path_distance(before) - path_distance(after)` (m), or `straight` (the straight line's
+    progress) when either is +inf: a goal cut off on the grid, or a robot whose nine cells are
+    all inside the inflated walls, is paid as without the field (docs/clutter.md, "Paid along
+    the path")."""
+    a, b = path_distance(field, size, before), path_distance(field, size, after)
+    return jnp.where(jnp.isfinite(a) & jnp.isfinite(b), a - b, straight)
+
+
 def reachable(world, goal: jax.Array, clearance: jax.Array, goal_radius: jax.Array, cells: int) -> jax.Array:
     """bool[starts]: which start rows of `world` (one room) have a path to `goal` on the plan's
     grid (their cell, or a free neighbour of it, has a finite field value)."""
@@ -290,14 +317,17 @@ class Plan:
 
     field: jax.Array  # f32[cells, cells] m to the goal (each edge times its cell's cost)
     cost: jax.Array  # f32[cells, cells] the cells' length multipliers (`cell_costs`; 1 with no margin)
-    starts: jax.Array  # f32[starts, 2] the waypoint at each start row
+    starts: jax.Array | None = None  # f32[starts, 2] the waypoint at each start row; None: path_progress alone
 
 
-def make(params, goal: jax.Array, clearance: jax.Array, cells: int) -> Plan:
+def make(params, goal: jax.Array, clearance: jax.Array, cells: int, walk: bool = True) -> Plan:
     """An episode's `Plan` towards `goal` in the room of `params` (EnvParams: its world, goal
-    radius, plan_lookahead and plan_margin), inflated by `clearance`."""
+    radius, plan_lookahead and plan_margin), inflated by `clearance`; `walk=False`: the field
+    only, no waypoints (what `env.path_progress` alone reads)."""
     world = params.world
     field, cost = goal_field(world, goal, clearance, params.goal_radius, cells, params.plan_margin)
+    if not walk:
+        return Plan(field, cost)
     first = params.plan_margin > 0
     walk = lambda xy: waypoint(field, world.size, goal, xy, params.plan_lookahead, cost, first)  # noqa: E731
     starts = jax.vmap(walk)(world.starts[:, :2])
