@@ -27,8 +27,8 @@ GOAL = (2.0, -2.0)
 WALL_END = (0.0, 1.5)  # the wall x = 0 runs from the bottom wall up to here; the way round is above it
 
 
-def _room(wall: bool, goals=(GOAL,)):
-    spec = {"size": [6.0, 6.0], "starts": [[-2.0, -2.0, 0.0]], "goals": [list(g) for g in goals]}
+def _room(wall: bool):
+    spec = {"size": [6.0, 6.0], "starts": [[-2.0, -2.0, 0.0]], "goals": [list(GOAL)]}
     if wall:
         spec["segments"] = [[0.0, -3.0, *WALL_END]]
     return from_dict(spec)[0]
@@ -153,8 +153,10 @@ def test_the_env_pays_along_the_path_and_observes_as_without():
 
 def test_the_config_turns_it_on_and_off():
     assert "path_progress" not in env_settings(load_config("thesis/flddpg"), "learn")
-    s = env_settings(load_config("thesis/flddpg", ["env.path_progress=true", "env.plan_cells=32"]), "learn")
+    on = load_config("thesis/flddpg", ["env.path_progress=true", "env.plan_cells=32"])
+    s = env_settings(on, "learn")
     assert s["path_progress"] is True and s["plan_cells"] == 32 and "plan" not in s
+    assert "path_progress" not in env_settings(on, "eval")  # an evaluation reads no reward: no field computed
 
 
 def test_a_tiny_run_paid_along_the_path_trains(tmp_path):

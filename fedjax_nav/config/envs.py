@@ -36,6 +36,7 @@ def env_settings(cfg: Config, mode: str, noise: bool | None = None, episode_leng
     settings = dict(cfg.robot.env_settings())
     if noise is not None:
         settings["noise"] = bool(noise)
+    path = e.path_progress and mode == "learn"  # a reward shapes training only: evaluations read none, need no field
     return {
         "num_beams": e.num_beams,
         "max_range": e.max_range,
@@ -44,8 +45,8 @@ def env_settings(cfg: Config, mode: str, noise: bool | None = None, episode_leng
         "collision_test": e.collision_test,
         **settings,
         **({"plan": True} if e.plan else {}),
-        **({"path_progress": True} if e.path_progress else {}),
-        **({"plan_cells": e.plan_cells} if e.plan or e.path_progress else {}),
+        **({"path_progress": True} if path else {}),
+        **({"plan_cells": e.plan_cells} if e.plan or path else {}),
     }
 
 

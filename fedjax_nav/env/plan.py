@@ -275,8 +275,9 @@ def path_distance(field: jax.Array, size, xy: jax.Array) -> jax.Array:
     """f32[]: m from the point `xy` to the goal along `field`: the least, over the cell holding
     `xy` and its 8 neighbours, of the cell's value plus the straight way from `xy` to its centre
     (+inf when all nine are): the field read between its cells' centres, so that a step of 2.5 cm
-    is paid about its length along the path, not a cell's side at a time (tests/test_plan.py
-    measures how far a step's change strays from the step's length)."""
+    is paid about its length along the path, not a cell's side at a time (where the step crosses
+    into another cell the nine cells change, and its change may stray from its length by a
+    fraction of a cell)."""
     cells = field.shape[0]
     _, xs, ys = grid(size, cells)
     iy, ix = cell_of(xy, size, cells)
